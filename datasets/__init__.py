@@ -1,0 +1,44 @@
+"""salsbench datasets: loading meshes into the canonical frame and the dataset registry (SPEC 1-2).
+
+    from datasets import get_dataset
+    for name in (ds := get_dataset("abc", data_dir="../shared/data/abc")).names():
+        shape = ds.load(name)            # may raise MeshError for this one shape only
+
+Registered datasets: ``builtin`` (default: 4 generated CAD-like shapes), ``abc``,
+``abc-nonmanifold`` and ``meshes`` (any folder of mesh files).
+"""
+
+from datasets.io import (
+    MESH_EXTENSIONS,
+    MeshError,
+    Normalization,
+    Shape,
+    canonical_transform,
+    classify_topology,
+    load_shape,
+    mesh_hash,
+    normalize_shape,
+    read_mesh_arrays,
+    save_mesh,
+)
+from datasets.registry import (
+    DEFAULT_DATASET,
+    Dataset,
+    DatasetError,
+    DatasetNotFoundError,
+    MissingShapesWarning,
+    available_datasets,
+    get_dataset,
+    register_dataset,
+)
+
+# importing the modules registers their datasets
+from datasets import builtin as _builtin  # noqa: E402,F401
+from datasets import abc as _abc  # noqa: E402,F401
+
+__all__ = [
+    "MESH_EXTENSIONS", "MeshError", "Normalization", "Shape", "canonical_transform", "classify_topology",
+    "load_shape", "mesh_hash", "normalize_shape", "read_mesh_arrays", "save_mesh",
+    "DEFAULT_DATASET", "Dataset", "DatasetError", "DatasetNotFoundError", "MissingShapesWarning",
+    "available_datasets", "get_dataset", "register_dataset",
+]

@@ -1,0 +1,220 @@
+"""datasets/io.py: reading, validation and the canonical frame (SPEC sections 1-2)."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+import trimesh
+
+from tests.conftest import SHARED_DATA, shared_meshes
+from datasets.io import (
+    MeshError,
+    Normalization,
+    classify_topology,
+    load_shape,
+    normalize_shape,
+    parse_off,
+    read_mesh_arrays,
+    save_mesh,
+)
+
+SHARED = shared_meshes()
+NO_SHARED = pytest.param(None, marks=pytest.mark.skip(reason=f"{SHARED_DATA} is absent: real-mesh tests need ../shared/data"))
+
+
+def _ids(paths):
+    return [p.relative_to(SHARED_DATA).as_posix() for p in paths]
+
+
+def file_vertex_count(path) -> int | None:
+    """Vertex count as the file states it (OBJ: 'v' lines; PLY: the header), None for STL."""
+    if path.suffix == ".obj":
+        return sum(1 for line in path.read_text().splitlines() if line.startswith("v "))
+    if path.suffix == ".ply":
+        header = path.read_bytes()[:4096]
+        return int(re.search(rb"element vertex (\d+)", header).group(1))
+    return None
+
+
+def provenance_stl_counts() -> dict[str, tuple[int, int]]:
+    """file name -> (V_merged, F) from the abc/ table of PROVENANCE.md."""
+    rows = [line.split("|") for line in (SHARED_DATA / "PROVENANCE.md").read_text().splitlines() if line.startswith("|")]
+    header = [c.strip() for c in rows[0]]
+    col_v, col_f = header.index("V_merged"), header.index("F")
+    return {r[1].split()[0]: (int(r[col_v]), int(r[col_f])) for r in rows if r[1].strip().endswith(".stl") or ".stl " in r[1]}
+
+
+# -- every real mesh ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("path", SHARED or [NO_SHARED], ids=_ids(SHARED) or None)
+def test_shared_mesh_loads_into_canonical_frame(path):
+    shape = load_shape(path)
+    v = shape.vertices
+    assert v.dtype == np.float64 and shape.faces.dtype == np.int64 and shape.faces.shape[1] == 3
+    assert np.abs(v).max() <= 0.995 + 1e-9
+    used = v[np.unique(shape.faces)]
+    assert np.ptp(used, axis=0).max() == pytest.approx(1.99, abs=1e-12)
+    assert np.allclose((used.max(0) + used.min(0)) / 2, 0.0, atol=1e-12)
+    # the transform maps back to the file's own coordinates
+    raw_vertices, raw_faces = read_mesh_arrays(path)
+    scale = np.abs(raw_vertices).max()
+    np.testing.assert_allclose(shape.transform.invert(v), raw_vertices, rtol=0, atol=1e-12 * scale)
+    np.testing.assert_array_equal(shape.faces, raw_faces)
+    # no silent merging: the vertex count is the file's
+    stated = file_vertex_count(path)
+    if stated is not None:
+        assert len(v) == stated
+
+
+@pytest.mark.skipif(not (SHARED_DATA / "PROVENANCE.md").is_file(), reason=f"{SHARED_DATA} is absent")
+def test_stl_is_welded_exactly_to_provenance_counts():
+    counts = provenance_stl_counts()
+    assert len(counts) == 7
+    for name, (v_merged, n_faces) in counts.items():
+        vertices, faces = read_mesh_arrays(SHARED_DATA / "abc" / name)
+        assert (len(vertices), len(faces)) == (v_merged, n_faces), name
+
+
+# -- bad inputs: one MeshError line naming the file -------------------------------------------------
+
+
+def _write(path, content):
+    if isinstance(content, bytes):
+        path.write_bytes(content)
+    else:
+        path.write_text(content)
+    return path
+
+
+BAD_INPUTS = {
+    "missing.obj": (None, "file not found"),
+    "empty.obj": ("", "file is empty"),
+    "garbage.ply": (bytes(range(256)) * 8, "unreadable"),
+    "garbage.obj": (bytes(range(256)) * 8, "binary data"),
+    "nan.obj": ("v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "NaN"),
+    "degenerate.obj": ("v 0 0 0\nv 1 0 0\nv 2 0 0\nv 3 0 0\nf 1 2 3\nf 1 2 4\nf 2 2 3\n", "area is zero"),
+    "points.ply": ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                   "property float z\nend_header\n0 0 0\n1 0 0\n0 1 0\n", "point cloud"),
+    "points.obj": ("v 0 0 0\nv 1 0 0\nv 0 1 0\n", "no faces"),
+    "text.obj": ("hello world\n", "no vertices"),
+    "badindex.obj": ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n", "out of range"),
+    "zeroindex.obj": ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", "index 0"),
+    "text.off": ("hello\n", "no OFF header"),
+    "short.off": ("OFF\n3 1 0\n0 0 0\n1 0 0\n", "ends early"),
+    "mesh.xyz": ("0 0 0\n", "unsupported extension"),
+}
+
+
+@pytest.mark.parametrize("file_name", sorted(BAD_INPUTS))
+def test_bad_input_gives_one_line_mesh_error(tmp_path, file_name):
+    content, expected = BAD_INPUTS[file_name]
+    path = tmp_path / file_name
+    if content is not None:
+        _write(path, content)
+    with pytest.raises(MeshError) as info:
+        read_mesh_arrays(path)
+    message = str(info.value)
+    assert "\n" not in message
+    assert message.startswith(str(path) + ":")
+    assert expected in message
+
+
+def test_directory_is_not_a_mesh(tmp_path):
+    (tmp_path / "folder.obj").mkdir()
+    with pytest.raises(MeshError, match="is a directory"):
+        load_shape(tmp_path / "folder.obj")
+
+
+# -- OBJ / OFF parsing, hand-checked -------------------------------------------------------------
+
+
+def test_quad_obj_is_fan_triangulated(tmp_path):
+    path = _write(tmp_path / "quad.obj", "v 0 0 0\nv 2 0 0\nv 2 1 0\nv 0 1 0\nf 1 2 3 4\n")
+    vertices, faces = read_mesh_arrays(path)
+    np.testing.assert_array_equal(faces, [[0, 1, 2], [0, 2, 3]])
+    assert len(vertices) == 4
+    shape = load_shape(path)
+    np.testing.assert_allclose(shape.vertices[2], [0.995, 0.4975, 0.0])  # centre (1, .5, 0), scale 1.99/2
+
+
+def test_obj_groups_share_vertices_and_indices_resolve(tmp_path):
+    text = """# two objects, two materials, texture/normal indices and a negative index
+o a
+v 0 0 0
+v 1 0 0
+v 1 1 0
+v 0 1 0
+vt 0 0
+vn 0 0 1
+usemtl m1
+f 1/1/1 2/1/1 3/1/1
+o b
+v 0 0 1   # trailing comment
+v 1 0 1
+usemtl m2
+f 1//1 3//1 4//1
+f -2 -1 3
+"""
+    vertices, faces = read_mesh_arrays(_write(tmp_path / "groups.obj", text))
+    assert len(vertices) == 6  # trimesh would split the groups into 12 vertices
+    np.testing.assert_array_equal(faces, [[0, 1, 2], [0, 2, 3], [4, 5, 2]])
+    np.testing.assert_array_equal(vertices[4], [0, 0, 1])
+
+
+OFF_VARIANTS = {
+    "plain": "OFF\n4 2 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2 3\n",
+    "counts on header line": "OFF 4 1 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n",
+    "counts glued (ModelNet)": "OFF4 1 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n",
+    "lower case, comments, CRLF, tabs": "off\r\n# made by hand\r\n4 1 0\r\n0 0 0 # origin\r\n1\t0 0\r\n\r\n1 1 0\r\n0 1 0\r\n4 0 1 2 3",
+    "COFF colours": "COFF\n4 2 0\n0 0 0 255 0 0 255\n1 0 0 255 0 0 255\n1 1 0 0 0 0 255\n0 1 0 0 0 0 255\n3 0 1 2 9 9 9\n3 0 2 3 9 9 9\n",
+    "NOFF normals": "NOFF\n4 1 0\n0 0 0 0 0 1\n1 0 0 0 0 1\n1 1 0 0 0 1\n0 1 0 0 0 1\n4 0 1 2 3\n",
+    "counts spread": "OFF\n4\n1\n0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n",
+}
+
+
+@pytest.mark.parametrize("variant", sorted(OFF_VARIANTS))
+def test_off_quirks(variant):
+    vertices, faces = parse_off(OFF_VARIANTS[variant])
+    np.testing.assert_array_equal(vertices, [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+    np.testing.assert_array_equal(faces, [[0, 1, 2], [0, 2, 3]])
+
+
+def test_gltf_scene_becomes_one_mesh_with_node_transforms(tmp_path):
+    scene = trimesh.Scene()
+    scene.add_geometry(trimesh.creation.box(extents=(2, 2, 2)), node_name="a")
+    scene.add_geometry(trimesh.creation.box(extents=(2, 2, 2)), node_name="b",
+                       transform=trimesh.transformations.translation_matrix([10, 0, 0]))
+    path = tmp_path / "scene.glb"
+    scene.export(path)
+    vertices, faces = read_mesh_arrays(path)
+    assert (len(vertices), len(faces)) == (16, 24)
+    np.testing.assert_allclose(vertices.min(0), [-1, -1, -1])
+    np.testing.assert_allclose(vertices.max(0), [11, 1, 1])
+
+
+# -- frame, topology, round trip --------------------------------------------------------------------
+
+
+def test_normalize_shape_hand_worked():
+    vertices = np.array([[0, 0, 0], [4, 0, 0], [0, 2, 0], [0, 0, 1]], dtype=float)
+    faces = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    shape = normalize_shape("tet", vertices, faces)
+    assert shape.transform.centre == (2.0, 1.0, 0.5) and shape.transform.scale == pytest.approx(1.99 / 4)
+    np.testing.assert_allclose(shape.vertices[1], [0.995, -0.4975, -0.24875])
+    composed = shape.transform.then(Normalization((0.5, 0.0, 0.0), 2.0))
+    np.testing.assert_allclose(composed.apply(vertices), (shape.vertices - [0.5, 0, 0]) * 2.0)
+    assert classify_topology(faces) == "closed"
+    assert classify_topology(faces[:3]) == "open"
+    assert classify_topology(np.vstack([faces, [[0, 1, 2]]])) == "nonmanifold"  # edge 0-1 in three faces
+
+
+def test_save_and_load_round_trip(tmp_path):
+    box = trimesh.creation.box(extents=(1, 2, 3))
+    path = tmp_path / "sub" / "box.ply"
+    save_mesh(path, box.vertices, box.faces)
+    vertices, faces = read_mesh_arrays(path)
+    np.testing.assert_allclose(vertices, box.vertices)
+    np.testing.assert_array_equal(faces, box.faces)
