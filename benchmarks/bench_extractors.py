@@ -1,0 +1,137 @@
+"""Speed of the grid extractors (pytest-benchmark; not part of the default test run).
+
+Shape: an analytic CAD-like "heat sink" (a base plate with fins, minus a cylindrical hole), with
+its SDF, UDF, UDF gradient and exact-ish grid-edge hits (bisection of the SDF along every edge
+whose endpoints change sign, normals from central differences of the SDF) on the grid of
+benchmark.grid. Compares, at N = 64 and 128:
+
+* scikit-image ``marching_cubes`` on the SDF grid (the reference),
+* oracle E-DC (:func:`methods.edc.edc_extract`, steps 2, 4, 5; the field is given),
+* MeshUDF-style extraction (:func:`methods.meshudf.meshudf_extract`) on the UDF grid.
+
+Run: ``.venv/bin/pytest benchmarks/bench_extractors.py --benchmark-enable``. The machines are shared
+and noisy, so the number to read is the ratio E-DC / marching cubes measured side by side:
+``.venv/bin/python benchmarks/bench_extractors.py`` prints it (interleaved medians).
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+
+import numpy as np
+import pytest
+from skimage.measure import marching_cubes
+
+from benchmark.grid import edge_endpoints, grid_points, spacing
+from methods.edc import edc_extract
+from methods.meshudf import meshudf_extract
+
+
+def _box_sdf(p, lo, hi):
+    c = (lo + hi) / 2
+    q = np.abs(p - c) - (hi - lo) / 2
+    out = np.linalg.norm(np.maximum(q, 0.0), axis=-1)
+    return out + np.minimum(q.max(axis=-1), 0.0)
+
+
+def heat_sink_sdf(p: np.ndarray) -> np.ndarray:
+    """Approximate SDF (exact sign, exact zero set) of a base plate + 6 fins minus a z-cylinder."""
+    p = np.asarray(p, dtype=np.float64)
+    d = _box_sdf(p, np.array([-0.8, -0.8, -0.7]), np.array([0.8, 0.8, -0.45]))
+    for x in np.linspace(-0.7, 0.7, 6):
+        fin = _box_sdf(p, np.array([x - 0.04, -0.75, -0.46]), np.array([x + 0.04, 0.75, 0.8]))
+        d = np.minimum(d, fin)
+    hole = np.sqrt((p[..., 0] - 0.13) ** 2 + (p[..., 1] - 0.11) ** 2) - 0.3
+    return np.maximum(d, -hole)
+
+
+def sdf_gradient(points, sdf=heat_sink_sdf, eps=1e-6):
+    g = np.stack([(sdf(points + eps * e) - sdf(points - eps * e)) / (2 * eps) for e in np.eye(3)], axis=-1)
+    return g / np.maximum(np.linalg.norm(g, axis=-1, keepdims=True), 1e-12)
+
+
+@functools.lru_cache(maxsize=4)
+def fields(N: int):
+    """(sdf grid, udf grid, udf gradient grid, edge ids, s, normals) of the heat sink at resolution N."""
+    P = grid_points(N)
+    sdf = heat_sink_sdf(P)
+    udf = np.abs(sdf)
+    grad = np.sign(sdf)[..., None] * sdf_gradient(P)
+    # intersected edges: the SDF changes sign between the endpoints (one crossing per edge)
+    ids = []
+    offset = 0
+    for a in range(3):
+        lo = [slice(None)] * 3
+        hi = [slice(None)] * 3
+        lo[a], hi[a] = slice(0, N - 1), slice(1, N)
+        change = (sdf[tuple(lo)] < 0) != (sdf[tuple(hi)] < 0)
+        ids.append(offset + np.flatnonzero(change))
+        offset += change.size
+    ids = np.concatenate(ids)
+    u, v = edge_endpoints(N, ids, dtype=np.float64)
+    t_lo, t_hi = np.zeros(len(ids)), np.ones(len(ids))
+    su = heat_sink_sdf(u) < 0
+    for _ in range(30):  # bisection for the crossing t in [0, 1] (to 1e-9 h)
+        t = (t_lo + t_hi) / 2
+        same = (heat_sink_sdf(u + t[:, None] * (v - u)) < 0) == su
+        t_lo = np.where(same, t, t_lo)
+        t_hi = np.where(same, t_hi, t)
+    t = (t_lo + t_hi) / 2
+    normals = sdf_gradient(u + t[:, None] * (v - u))
+    return sdf, udf, grad, ids, 1.0 - t, normals
+
+
+RESOLUTIONS = [64, 128]
+
+
+@pytest.mark.parametrize("N", RESOLUTIONS)
+def test_skimage_marching_cubes(benchmark, N):
+    sdf = fields(N)[0]
+    verts, faces, _, _ = benchmark(marching_cubes, sdf, 0.0)
+    assert len(faces) > 0
+
+
+@pytest.mark.parametrize("N", RESOLUTIONS)
+def test_edc_oracle(benchmark, N):
+    _, _, _, ids, s, normals = fields(N)
+    benchmark.extra_info["intersected_edges"] = int(len(ids))
+    verts, faces, _ = benchmark(edc_extract, N, ids, s, normals)
+    assert len(faces) > 0
+
+
+@pytest.mark.parametrize("N", RESOLUTIONS)
+def test_meshudf(benchmark, N):
+    _, udf, grad, _, _, _ = fields(N)
+    verts, faces, _ = benchmark(meshudf_extract, udf, grad)
+    assert len(faces) > 0
+
+
+def _median_time(fn, repeats):
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return float(np.median(times))
+
+
+def main(repeats: int = 15):
+    for N in RESOLUTIONS:
+        sdf, udf, grad, ids, s, normals = fields(N)
+        mc, edc, mu = [], [], []
+        stages = []
+        for _ in range(repeats):  # interleaved so that machine load hits all three alike
+            mc.append(_median_time(lambda: marching_cubes(sdf, 0.0), 1))
+            edc.append(_median_time(lambda: stages.append(edc_extract(N, ids, s, normals)[2]), 1))
+            mu.append(_median_time(lambda: meshudf_extract(udf, grad), 1))
+        mc, edc, mu = np.median(mc), np.median(edc), np.median(mu)
+        st = {k: float(np.median([t[k] for t in stages])) for k in stages[0]}
+        print(f"N={N}: intersected edges {len(ids)}, h={spacing(N):.4f}")
+        print(f"  skimage MC {mc * 1e3:.1f} ms | E-DC {edc * 1e3:.1f} ms (ratio E-DC/MC {edc / mc:.2f}; "
+              + ", ".join(f"{k} {v * 1e3:.1f} ms" for k, v in st.items())
+              + f") | MeshUDF {mu * 1e3:.1f} ms (ratio {mu / mc:.2f})")
+
+
+if __name__ == "__main__":
+    main()

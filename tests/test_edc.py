@@ -1,0 +1,233 @@
+"""E-DC (SPEC section 6) on analytic edge fields: planes, a cube, an open sheet, crossing planes.
+
+The edge fields are built exactly with numpy (no mesh library): an edge along axis a from u to
+v = u + h e_a meets the plane n . x = c at t = (c - n . u) / (n_a h); it is a hit when 0 <= t <= 1
+and the hit point lies in the plane's (optional) rectangle; each edge keeps the hit nearest its
+lower endpoint (like the oracle LSF), with s = 1 - t and the plane's normal.
+"""
+
+import numpy as np
+import pytest
+
+from benchmark.grid import EdgeField, edge_axes, edge_endpoints, num_edges, spacing
+from methods.edc import (
+    edc_cell_vertices,
+    edc_extract,
+    edc_from_edge_field,
+    edge_points,
+    intersected_edges,
+    qef_solve,
+)
+
+
+def planes_edge_field(N, planes):
+    """EdgeField of a set of planes. ``planes``: list of (normal (3,), offset c, bounds (3, 2) or None)."""
+    u, v = edge_endpoints(N, dtype=np.float64)
+    axis = edge_axes(N).astype(np.int64)
+    h = spacing(N)
+    E = num_edges(N)
+    best_t = np.full(E, np.inf)
+    normal = np.zeros((E, 3))
+    for n, c, bounds in planes:  # loop over a handful of planes, vectorised over edges
+        n = np.asarray(n, dtype=np.float64)
+        n = n / np.linalg.norm(n)
+        denom = n[axis] * h
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (c - u @ n) / denom
+        ok = (denom != 0) & (t >= 0) & (t <= 1)
+        if bounds is not None:
+            p = u + np.nan_to_num(t)[:, None] * (v - u)
+            b = np.asarray(bounds, dtype=np.float64)
+            ok &= ((p >= b[:, 0] - 1e-12) & (p <= b[:, 1] + 1e-12)).all(axis=1)
+        better = ok & (t < best_t)
+        best_t[better] = t[better]
+        normal[better] = n
+    hit = np.isfinite(best_t)
+    s = np.where(hit, 1.0 - best_t, 0.0)
+    return EdgeField(N, hit, s.astype(np.float32), normal.astype(np.float32)), s, normal
+
+
+def field_arrays(N, planes):
+    """(ids, s float64, normals float64) of the intersected edges (float64 for exact checks)."""
+    field, s, normal = planes_edge_field(N, planes)
+    ids = np.flatnonzero(field.hit)
+    return ids, s[ids], normal[ids]
+
+
+def edge_use_counts(faces):
+    """Number of faces on each undirected mesh edge."""
+    e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    _, counts = np.unique(e, axis=0, return_counts=True)
+    return counts
+
+
+def box_faces(a):
+    """The 6 faces of the cube [-a, a]^3 as bounded planes."""
+    planes = []
+    for ax in range(3):
+        for sign in (-1.0, 1.0):
+            n = np.zeros(3)
+            n[ax] = 1.0
+            bounds = np.array([[-a, a]] * 3)
+            bounds[ax] = [sign * a, sign * a]
+            planes.append((n, sign * a, bounds))
+    return planes
+
+
+N = 16
+H = spacing(N)
+
+
+def test_edge_points_formula():
+    # edge 0 starts at grid (0, 0, 0) along x: p = u + (1 - s) h e_x
+    p = edge_points(N, np.array([0]), np.array([0.25]))
+    assert np.allclose(p, [[-1 + 0.75 * H, -1, -1]])
+    assert np.array_equal(intersected_edges(np.array([0.05, 0.2, 0.1, 0.9])), [1, 3])
+
+
+def test_edge_decoding_matches_the_grid_module():
+    from benchmark.grid import edge_index_to_ijk_axis
+    from methods.edc import _decode_edges
+
+    ids = np.random.default_rng(2).choice(num_edges(N), 500, replace=False)
+    ijk, axis = _decode_edges(N, ids)
+    ref_ijk, ref_axis = edge_index_to_ijk_axis(N, ids)
+    assert np.array_equal(ijk, ref_ijk) and np.array_equal(axis, ref_axis)
+    field, _, _ = planes_edge_field(N, [((0.2, 0.3, 1.0), 0.1, None)])
+    hit_ids, p_ref = field.hit_points()
+    assert np.allclose(edge_points(N, hit_ids, field.s[hit_ids]), p_ref)
+
+
+def test_plane_vertices_lie_on_the_plane():
+    c = 0.123  # not on a grid plane
+    ids, s, nrm = field_arrays(N, [((0, 0, 1), c, None)])
+    assert len(ids) == N * N  # one z-edge per grid column
+    v, f, timings = edc_extract(N, ids, s, nrm)
+    assert np.abs(v[:, 2] - c).max() < 1e-12
+    assert set(timings) == {"edge_points", "qef", "faces"}
+    # fan4: 4 triangles per interior z-edge, (N - 2)^2 of them
+    assert len(f) == 4 * (N - 2) ** 2
+    # an open sheet with a boundary and no non-manifold edge
+    counts = edge_use_counts(f)
+    assert (counts == 1).sum() > 0 and counts.max() == 2
+
+
+def test_cube_corners_and_edges_are_sharp_with_normals():
+    a = 0.4567
+    ids, s, nrm = field_arrays(N, box_faces(a))
+    v, f, _ = edc_extract(N, ids, s, nrm)
+    corners = np.array(np.meshgrid([-a, a], [-a, a], [-a, a], indexing="ij")).reshape(3, -1).T
+    dist = np.linalg.norm(v[None, :, :] - corners[:, None, :], axis=-1).min(axis=1)
+    assert dist.max() < 1e-6  # all 8 corners reproduced
+    # every vertex lies on the cube surface; vertices with two coordinates at +-a lie on edge lines
+    on_face = np.abs(np.abs(v) - a) < 1e-9
+    assert on_face.any(axis=1).all()
+    # the 12 edge lines: the vertex of every cell that a cube edge line crosses is exactly on it
+    M = N - 1
+    cells, cv = edc_cell_vertices(N, ids, s, nrm)
+    lo = -1 + np.stack(np.unravel_index(cells, (M, M, M)), axis=1) * H
+    holds_plane = ((lo <= a) & (lo + H >= a)) | ((lo <= -a) & (lo + H >= -a))  # (C, 3)
+    on_edge_line = holds_plane.sum(axis=1) >= 2
+    assert on_edge_line.sum() >= 12 * 4
+    assert (np.abs(np.abs(cv[on_edge_line]) - a) < 1e-9).sum(axis=1).min() >= 2
+    # closed surface: every mesh edge used by exactly two faces
+    assert (edge_use_counts(f) == 2).all()
+
+
+def test_cube_without_normals_cuts_corners():
+    a = 0.4567
+    ids, s, _ = field_arrays(N, box_faces(a))
+    v, f, _ = edc_extract(N, ids, s, None)
+    corners = np.array(np.meshgrid([-a, a], [-a, a], [-a, a], indexing="ij")).reshape(3, -1).T
+    dist = np.linalg.norm(v[None, :, :] - corners[:, None, :], axis=-1).min(axis=1)
+    assert dist.min() > 0.05 * H  # mass points cannot reach the corners
+
+
+def test_open_square_sheet_stays_open():
+    b = 0.5321
+    bounds = np.array([[-b, b], [-b, b], [0.0123, 0.0123]])
+    ids, s, nrm = field_arrays(N, [((0, 0, 1), 0.0123, bounds)])
+    v, f, _ = edc_extract(N, ids, s, nrm)
+    counts = edge_use_counts(f)
+    assert (counts == 1).sum() > 0  # a boundary loop
+    assert counts.max() == 2  # manifold
+    assert np.abs(v[:, 2] - 0.0123).max() < 1e-12
+    # the sheet does not grow past its border by more than one cell
+    assert np.abs(v[:, :2]).max() <= b + H
+
+
+def test_crossing_planes_give_non_manifold_crossing_line():
+    c1, c2 = 0.0711, -0.1234
+    ids, s, nrm = field_arrays(N, [((1, 0, 0), c1, None), ((0, 1, 0), c2, None)])
+    v, f, _ = edc_extract(N, ids, s, nrm)
+    counts = edge_use_counts(f)
+    assert (counts > 2).sum() >= N - 3  # non-manifold edges all along the crossing line
+    # vertices of the cells on the crossing line are exactly on it
+    on_line = (np.abs(v[:, 0] - c1) < 1e-12) & (np.abs(v[:, 1] - c2) < 1e-12)
+    assert on_line.sum() == N - 1  # one per cell of the column that holds the line
+    # every vertex lies on one of the two planes
+    assert ((np.abs(v[:, 0] - c1) < 1e-12) | (np.abs(v[:, 1] - c2) < 1e-12)).all()
+
+
+def test_quad2_vs_fan4_counts():
+    a = 0.4567
+    ids, s, nrm = field_arrays(N, box_faces(a))
+    v4, f4, _ = edc_extract(N, ids, s, nrm, faces="fan4")
+    v2, f2, _ = edc_extract(N, ids, s, nrm, faces="quad2")
+    # the cube lies inside the grid: every intersected edge is interior
+    K = len(ids)
+    assert len(f4) == 4 * K and len(f2) == 2 * K
+    assert len(v4) == len(v2) + K
+    assert np.allclose(v4[: len(v2)], v2)
+
+
+def test_clamp_keeps_vertices_in_their_cells():
+    rng = np.random.default_rng(0)
+    ids, s, _ = field_arrays(N, [((0.3, 0.2, 1.0), 0.1, None)])
+    s = rng.uniform(0, 1, len(ids))
+    nrm = rng.normal(size=(len(ids), 3))  # inconsistent normals push QEF vertices out of cells
+    M = N - 1
+    cells, free = edc_cell_vertices(N, ids, s, nrm)
+    cells2, clamped = edc_cell_vertices(N, ids, s, nrm, clamp_to_cell=True)
+    assert np.array_equal(cells, cells2)
+    lo = -1 + np.stack(np.unravel_index(cells, (M, M, M)), axis=1) * H
+    outside = ((free < lo - 1e-12) | (free > lo + H + 1e-12)).any(axis=1)
+    assert outside.sum() > 0
+    assert ((clamped >= lo - 1e-12) & (clamped <= lo + H + 1e-12)).all()
+    assert np.allclose(clamped[~outside], free[~outside])
+
+
+def test_qef_solve_matches_numpy_pinv():
+    rng = np.random.default_rng(1)
+    n = rng.normal(size=(500, 4, 3))
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    n[:100, 1:] = n[:100, :1]  # rank 1
+    n[100:200, 2:] = n[100:200, 1:2]  # rank 2
+    n[200:250, 1:] = n[200:250, :1] + 1e-3 * rng.normal(size=(50, 3, 3))  # near rank 1
+    A = np.einsum("kni,knj->kij", n, n)
+    r = rng.normal(size=(500, 3))
+    w, V = np.linalg.eigh(A)
+    inv = np.where(w >= 0.1, 1.0 / np.where(w >= 0.1, w, 1.0), 0.0)
+    expected = np.einsum("kij,kj,klj,kl->ki", V, inv, V, r)
+    packed = A[:, [0, 1, 2, 0, 0, 1], [0, 1, 2, 1, 2, 2]]
+    assert np.allclose(qef_solve(packed, r, 0.1), expected, atol=1e-8)
+
+
+def test_oracle_wrapper_and_empty_and_errors():
+    field, _, _ = planes_edge_field(N, [((0, 0, 1), 0.123, None)])
+    v, f, _ = edc_from_edge_field(field)
+    assert np.abs(v[:, 2] - 0.123).max() < 1e-6  # float32 storage
+    v0, f0, _ = edc_from_edge_field(field, use_normals=False)
+    assert len(f0) == len(f)
+    v, f, t = edc_extract(N, np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros((0, 3)))
+    assert v.shape == (0, 3) and f.shape == (0, 3)
+    with pytest.raises(ValueError, match="edge_ids"):
+        edc_extract(N, np.array([num_edges(N)]), np.array([0.5]))
+    with pytest.raises(ValueError, match="duplicate"):
+        edc_extract(N, np.array([5, 3, 5]), np.array([0.5, 0.5, 0.5]))
+    with pytest.raises(ValueError, match="s must"):
+        edc_extract(N, np.array([3]), np.array([1.5]))
+    with pytest.raises(ValueError, match="normals"):
+        edc_extract(N, np.array([3]), np.array([0.5]), np.zeros((2, 3)))
+    with pytest.raises(ValueError, match="faces"):
+        edc_extract(N, np.array([3]), np.array([0.5]), faces="hex")

@@ -1,0 +1,83 @@
+"""Marching cubes on grid fields: frame mapping, outward orientation for SDF and occupancy, edge cases."""
+
+import numpy as np
+import pytest
+
+from benchmark.grid import grid_points, spacing
+from methods.marching_cubes import marching_cubes_grid
+
+N = 40
+R = 0.6
+CENTRE = np.array([0.1, -0.05, 0.02])
+
+
+def sphere_sdf(N=N, r=R, centre=CENTRE):
+    return np.linalg.norm(grid_points(N) - centre, axis=-1) - r
+
+
+def signed_volume(v, f):
+    """Sum over faces of a . (b x c) / 6: positive for a closed mesh with outward faces."""
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    return float(np.einsum("ij,ij->", a, np.cross(b, c)) / 6.0)
+
+
+def face_normals_dot_radial(v, f, centre=CENTRE):
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    n = np.cross(b - a, c - a)
+    return np.einsum("ij,ij->i", n, (a + b + c) / 3.0 - centre)
+
+
+def test_sdf_sphere_is_in_frame_and_outward():
+    v, f = marching_cubes_grid(sphere_sdf(), level=0.0, inside="low")
+    assert v.dtype == np.float64 and f.dtype == np.int64
+    h = spacing(N)
+    radius = np.linalg.norm(v - CENTRE, axis=1)
+    # exact SDF, linear interpolation along edges: error O(h^2 / r), well under h / 10
+    assert np.abs(radius - R).max() < h / 10
+    assert signed_volume(v, f) > 0
+    assert np.isclose(signed_volume(v, f), 4 / 3 * np.pi * R**3, rtol=0.02)
+    assert (face_normals_dot_radial(v, f) > 0).all()
+
+
+def test_occupancy_sphere_is_outward():
+    sdf = sphere_sdf()
+    prob = 1.0 / (1.0 + np.exp(sdf / 0.02))  # high inside, 0.5 on the sphere
+    v, f = marching_cubes_grid(prob, level=0.5, inside="high")
+    assert signed_volume(v, f) > 0
+    assert np.isclose(signed_volume(v, f), 4 / 3 * np.pi * R**3, rtol=0.02)
+    assert (face_normals_dot_radial(v, f) > 0).all()
+
+
+def test_bool_mask_high_inside_is_outward():
+    mask = sphere_sdf() < 0
+    v, f = marching_cubes_grid(mask, level=0.5, inside="high")
+    assert len(f) > 0 and signed_volume(v, f) > 0
+    assert (face_normals_dot_radial(v, f) > 0).all()
+    # a 0/1 mask puts every vertex at an edge midpoint: within h/2 + h^2 of the sphere
+    assert np.abs(np.linalg.norm(v - CENTRE, axis=1) - R).max() < spacing(N) * 0.75
+
+
+def test_low_and_high_give_opposite_windings_of_the_same_surface():
+    sdf = sphere_sdf()
+    v1, f1 = marching_cubes_grid(sdf, 0.0, "low")
+    v2, f2 = marching_cubes_grid(-sdf, 0.0, "high")
+    assert len(v1) == len(v2) and len(f1) == len(f2)
+    assert np.allclose(np.sort(v1, axis=0), np.sort(v2, axis=0))
+    assert np.isclose(signed_volume(v1, f1), signed_volume(v2, f2))
+
+
+@pytest.mark.parametrize("volume", [np.ones((8, 8, 8)), np.full((8, 8, 8), 0.5), np.zeros((8, 8, 8), bool)])
+def test_no_crossing_gives_empty_mesh(volume):
+    v, f = marching_cubes_grid(volume, level=0.5, inside="high")
+    assert v.shape == (0, 3) and f.shape == (0, 3)
+
+
+def test_bad_inputs_raise_one_line_errors():
+    vol = sphere_sdf(N=8)
+    vol[1, 2, 3] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        marching_cubes_grid(vol)
+    with pytest.raises(ValueError, match="shape"):
+        marching_cubes_grid(np.zeros((4, 4, 5)))
+    with pytest.raises(ValueError, match="inside"):
+        marching_cubes_grid(sphere_sdf(N=8), inside="outside")
