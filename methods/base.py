@@ -46,6 +46,8 @@ class Method:
     output_dim : number of network outputs.
     extractor : name of the extraction algorithm, for tables (e.g. ``'marching cubes'``, ``'E-DC'``).
     default_params : extractor parameters and their defaults; users override any of them.
+    loss_needs_input_grad : the loss differentiates the network w.r.t. its inputs (the fitting loop
+        then sets ``requires_grad`` on each batch's inputs before the forward pass).
     """
 
     name: ClassVar[str] = ""
@@ -54,6 +56,7 @@ class Method:
     output_dim: ClassVar[int] = 1
     extractor: ClassVar[str] = ""
     default_params: ClassVar[dict[str, Any]] = {}
+    loss_needs_input_grad: ClassVar[bool] = False
 
     def __init__(self, **params: Any):
         unknown = set(params) - set(self.default_params)

@@ -1,0 +1,94 @@
+"""Sparse vs dense grid queries at 128^3 (methods/query.py).
+
+Run the ratio table (interleaved, one process):  .venv/bin/python benchmarks/bench_query.py [N] [threads]
+or as pytest-benchmark:  .venv/bin/pytest benchmarks/bench_query.py -o python_files='bench_*.py' --benchmark-enable -q
+Goal: sparse / dense query time <= 0.2 at N = 128 for points (sdf) and edges (sals, 6.24M edges dense).
+
+The network is the *quick* architecture (5 linear layers, width 128) whose output is replaced by an
+analytic sphere field (radius 0.6; points: signed distance; edges: hit logit +-30 and the linear
+crossing parameter), so the cost is a real network's while the marked blocks are a real surface's.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from methods import query
+from methods.fitting import BUDGETS
+from methods.network import make_network
+
+R = 0.6
+
+
+class CostlySphere(torch.nn.Module):
+    """The quick MLP's cost, the sphere's values (see module docstring)."""
+
+    def __init__(self, in_dim):
+        super().__init__()
+        b = BUDGETS["quick"]
+        self.mlp = make_network(in_dim, 2 if in_dim == 6 else 1, depth=b.depth, width=b.width)
+        self.config = self.mlp.config
+        self.in_dim = in_dim
+
+    def forward(self, x):
+        cost = self.mlp(x) * 0.0
+        if self.in_dim == 3:
+            return (x.norm(dim=1) - R)[:, None] + cost
+        fu, fv = x[:, :3].norm(dim=1) - R, x[:, 3:].norm(dim=1) - R
+        hit = fu * fv <= 0
+        tau = (fu / (fu - fv).where(fu != fv, torch.ones_like(fu))).clamp(1e-4, 1 - 1e-4)
+        s = 1 - tau
+        return torch.stack([torch.where(hit, 30.0, -30.0), torch.log(s / (1 - s))], 1) + cost
+
+
+def dense_points(N):
+    return query.dense_grid_points(CostlySphere(3), N)
+
+
+def sparse_points(N):
+    return query.sparse_grid_points(CostlySphere(3), N, query.near_level(0.0, query.block_half_diagonal(N)))
+
+
+def dense_edges(N):
+    return query.dense_grid_edges(CostlySphere(6), N)
+
+
+def sparse_edges(N):
+    return query.sparse_grid_edges(CostlySphere(6), N, lambda v: v[:, 0] > np.log(0.02 / 0.98),
+                                   edge_fill=np.array([-30.0, 0.0], np.float32))
+
+
+@pytest.mark.parametrize("fn", [dense_points, sparse_points, dense_edges, sparse_edges])
+def test_query_128(benchmark, fn):
+    benchmark.pedantic(fn, args=(128,), rounds=1, iterations=1)
+
+
+def main(N=128, threads=None):
+    if threads:
+        torch.set_num_threads(int(threads))
+    torch.manual_seed(0)
+    rows = []
+    for kind, dense, sparse in (("points", dense_points, sparse_points), ("edges", dense_edges, sparse_edges)):
+        t0 = time.perf_counter()
+        d = dense(N)
+        t1 = time.perf_counter()
+        s, evaluated, info = sparse(N)
+        t2 = time.perf_counter()
+        if kind == "points":
+            agree = float((np.sign(s[..., 0]) == np.sign(d[..., 0])).mean())
+        else:
+            agree = float(((s[:, 0] > 0) == (d[:, 0] > 0)).mean())
+        rows.append((kind, t1 - t0, t2 - t1, (t2 - t1) / (t1 - t0), info.fraction, agree))
+    print(f"N={N}, torch threads={torch.get_num_threads()}; quick MLP (5 x 128) cost, sphere r={R} values")
+    print(f"{'kind':7s} {'dense s':>8s} {'sparse s':>9s} {'time ratio':>10s} {'evaluated':>10s} {'agreement':>10s}")
+    for kind, td, ts, ratio, frac, agree in rows:
+        print(f"{kind:7s} {td:8.2f} {ts:9.2f} {ratio:10.3f} {frac:10.3f} {agree:10.5f}")
+
+
+if __name__ == "__main__":
+    main(*(int(a) for a in sys.argv[1:]))

@@ -1,0 +1,100 @@
+"""``sals``: neural line segment field (SALS) + E-DC (SPEC sections 5-6).
+
+Network (u, v) (6) -> two logits; o_hat = sigmoid(out_0) (the segment hits the surface), s_hat =
+sigmoid(out_1) (hit point s u + (1 - s) v). Targets: ``ExactFields.segments(u, v)`` on the shared
+samples' segments: o (0/1) and s. Loss::
+
+    10 * mean_{o = 1} |s_hat - s|  +  BCE(o_hat, o)
+
+(BCE computed from the logit, ``binary_cross_entropy_with_logits``: the same value, stable).
+Extraction: E-DC (``methods.edc.edc_extract``) on the edges with o_hat > ``o_threshold`` (0.1).
+Normals (``normals=True``): the gradient of s_hat w.r.t. the endpoint nearer the hit (d s/d u if
+s_hat > 0.5, else d s/d v), normalised (sigmoid is monotonic, so the gradient of the s logit has the
+same direction), by autograd in chunks, only for intersected edges.
+Oracle: the exact segment field of every grid edge (``benchmark.fields``, disk-cached) and the hit
+triangle's normal.
+Neural: sparse query of :mod:`methods.query` on the edges: coarse edges (length S h) with
+o_hat > ``o_low`` (0.02) mark the blocks they touch; far edges are "no hit".
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from methods.base import Extraction, Method, register_method
+from methods import query
+
+#: Weight of the s term (SPEC section 5).
+S_WEIGHT = 10.0
+
+
+def _logit(p: float) -> float:
+    return float(np.log(p / (1.0 - p)))
+
+
+@register_method
+class SALSMethod(Method):
+    name = "sals"
+    description = "neural line segment field (SALS) + edge-based dual contouring (E-DC)"
+    input_kind = "segments"
+    output_dim = 2
+    extractor = "E-DC"
+    default_params = {"o_threshold": 0.1, "normals": True, "qef_cutoff": 0.1, "clamp_to_cell": False,
+                      "faces": "fan4", "o_low": 0.02, "stride": query.DEFAULT_STRIDE}
+
+    def training_targets(self, fields, samples) -> dict[str, np.ndarray]:
+        seg = samples.segments
+        hit, s, _ = fields.segments(seg[:, 0], seg[:, 1])
+        return {"o": hit.astype(np.float32), "s": s.astype(np.float32)}
+
+    def loss(self, prediction, targets, inputs=None, model=None):
+        o = targets["o"]
+        bce = F.binary_cross_entropy_with_logits(prediction[:, 0], o)
+        s_err = (torch.sigmoid(prediction[:, 1]) - targets["s"]).abs()
+        return S_WEIGHT * (s_err * o).sum() / o.sum().clamp(min=1.0) + bce
+
+    def oracle_grid(self, fields, N, cache=None):
+        from benchmark.fields import cached_grid_fields
+
+        t = time.perf_counter()
+        ef = cached_grid_fields(fields, N, "edges", cache_dir=cache)
+        ids = np.flatnonzero(ef.hit)
+        grid = {"edge_ids": ids, "s": ef.s[ids], "normals": ef.normal[ids]}
+        return grid, {"query_s": time.perf_counter() - t}
+
+    def neural_grid(self, model, N, device=None):
+        t0 = time.perf_counter()
+        low = _logit(self.params["o_low"])
+
+        def near(values):
+            return values[:, 0] > low
+
+        out, _, info = query.sparse_grid_edges(model, N, near, device, stride=self.params["stride"],
+                                               edge_fill=np.array([-30.0, 0.0], dtype=np.float32))
+        ids = np.flatnonzero(out[:, 0] > _logit(self.params["o_threshold"]))
+        s = (1.0 / (1.0 + np.exp(-out[ids, 1].astype(np.float64)))).astype(np.float32)
+        t1 = time.perf_counter()
+        normals = None
+        if self.params["normals"] and len(ids):
+            _, g = query.evaluate_with_input_grad(model, query.edge_inputs(N, ids), 1, device)
+            g = np.where((s > 0.5)[:, None], g[:, :3], g[:, 3:])
+            norm = np.linalg.norm(g, axis=1, keepdims=True)
+            normals = np.divide(g, norm, out=np.zeros_like(g), where=norm > 0)
+        t2 = time.perf_counter()
+        timings = {"query_s": t2 - t0, "query_edges_s": t1 - t0, "query_normals_s": t2 - t1,
+                   "query_fraction": info.fraction}
+        return {"edge_ids": ids, "s": s, "normals": normals}, timings
+
+    def extract(self, grid_field, N, query=None) -> Extraction:
+        from methods.edc import edc_extract
+
+        normals = grid_field.get("normals") if self.params["normals"] else None
+        V, Fc, steps = edc_extract(N, grid_field["edge_ids"], grid_field["s"], normals,
+                                   qef_cutoff=self.params["qef_cutoff"], clamp_to_cell=self.params["clamp_to_cell"],
+                                   faces=self.params["faces"])
+        return Extraction(V, Fc, {f"extract_{k}_s": float(v) for k, v in steps.items()},
+                          info={"intersected_edges": int(len(grid_field["edge_ids"]))})
