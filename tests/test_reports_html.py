@@ -1,0 +1,223 @@
+"""Headless rendering and the self-contained report.html, checked in a real headless browser.
+
+The browser tests need Debian's ``chromium`` (``apt-get install chromium``; scripts/setup.sh --test
+installs it) and are skipped with that reason when it is absent. Set SALSBENCH_KEEP_SCREENSHOT=DIR
+to keep the browser's screenshot of the test report there.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import re
+import shutil
+import subprocess
+from html.parser import HTMLParser
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+
+import reports
+from reports.render import BACKGROUND, distances_to_mesh, error_colors, render_mesh, ERROR_STOPS
+from tests.test_reports_tables import CONFIG, make_results
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+needs_chromium = pytest.mark.skipif(
+    CHROMIUM is None, reason="chromium is not installed (apt-get install chromium): the browser check of report.html is skipped"
+)
+
+
+def png_array(png: bytes) -> np.ndarray:
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
+
+
+def unit_cube():
+    box = trimesh.creation.box(extents=(2.0, 2.0, 2.0))  # [-1, 1]^3
+    return np.asarray(box.vertices, float), np.asarray(box.faces, np.int64)
+
+
+# ---------------------------------------------------------------------------------------------
+# render_mesh
+# ---------------------------------------------------------------------------------------------
+
+
+def test_render_cube_has_right_size_and_content():
+    V, F = unit_cube()
+    img = png_array(render_mesh(V, F, size=(160, 120)))
+    assert img.shape == (120, 160, 3)
+    background = np.all(img == np.round(BACKGROUND * 255), axis=2)
+    assert background[0, 0] and background[-1, -1]  # corners are background (5% margin)
+    assert not background[60, 80]  # the cube covers the centre
+    assert 0.3 < (~background).mean() < 0.95
+    # three visible faces, flat shaded: at least three clearly different grey levels
+    levels = np.unique((img[~background].mean(axis=1) // 8).astype(int))
+    assert len(levels) >= 3
+
+
+def test_render_is_two_sided_and_deterministic():
+    V, F = unit_cube()
+    a = render_mesh(V, F)
+    flipped = render_mesh(V, F[:, ::-1])  # every face reversed (unoriented output): same picture
+    assert np.array_equal(png_array(a), png_array(flipped))
+    assert a == render_mesh(V, F)
+
+
+def test_render_empty_and_degenerate_meshes_are_blank():
+    for V, F in [(np.zeros((0, 3)), np.zeros((0, 3), np.int64)),
+                 (np.zeros((3, 3)), np.array([[0, 1, 2]])),
+                 (np.full((3, 3), np.nan), np.array([[0, 1, 2]]))]:
+        img = png_array(render_mesh(V, F, size=(64, 48)))
+        assert img.shape == (48, 64, 3) and np.all(img == 255)
+
+
+def test_render_fixed_bounds_frame_shapes_alike():
+    V, F = unit_cube()
+    bounds = (np.full(3, -1.0), np.full(3, 1.0))
+    big = png_array(render_mesh(V, F, bounds=bounds, size=(128, 128)))
+    small = png_array(render_mesh(V * 0.5, F, bounds=bounds, size=(128, 128)))  # same camera, half size
+    cover_big = (big != 255).any(axis=2).mean()
+    cover_small = (small != 255).any(axis=2).mean()
+    assert cover_small == pytest.approx(cover_big / 4, rel=0.1)  # area scales with the square
+
+
+def test_render_vertex_colors_and_bad_input():
+    V, F = unit_cube()
+    red = np.tile([1.0, 0.0, 0.0], (len(V), 1))
+    img = png_array(render_mesh(V, F, colors=red, size=(64, 64)))
+    fg = img[(img != 255).any(axis=2)].astype(int)
+    assert (fg[:, 0] > fg[:, 1] + 40).mean() > 0.95  # reds everywhere on the cube
+    with pytest.raises(ValueError, match="colors must be"):
+        render_mesh(V, F, colors=np.ones((5, 3)))
+    with pytest.raises(ValueError, match="faces index vertices"):
+        render_mesh(V, F + 100)
+
+
+def test_distance_and_error_colors_by_hand():
+    V, F = unit_cube()
+    d = distances_to_mesh(np.array([[0.0, 0.0, 2.0], [0.0, 0.0, 1.0], [2.0, 2.0, 1.0], [np.nan, 0, 0]]), V, F)
+    assert d[:3] == pytest.approx([1.0, 0.0, np.sqrt(2.0)]) and np.isnan(d[3])
+    c = error_colors(np.array([0.0, 0.01, 0.5, np.nan]), vmax=0.01)
+    first = [int(ERROR_STOPS[0][1][i:i + 2], 16) / 255 for i in (1, 3, 5)]
+    last = [int(ERROR_STOPS[-1][1][i:i + 2], 16) / 255 for i in (1, 3, 5)]
+    assert c[0] == pytest.approx(first) and c[1] == pytest.approx(last) and c[2] == pytest.approx(last)
+    assert c[3] == pytest.approx([0.5, 0.5, 0.5])
+
+
+# ---------------------------------------------------------------------------------------------
+# report.html
+# ---------------------------------------------------------------------------------------------
+
+
+def write_fake_meshes(meshes: Path) -> None:
+    """GT meshes of the fake run; predictions = subdivided GT pushed outwards by 0.002 (sals) and
+    0.006 (sdf) along the vertex normals; sdf has no cylinder mesh (its jobs failed)."""
+    gts = {"cube": trimesh.creation.box(extents=(1.9, 1.5, 1.2)),
+           "sphere": trimesh.creation.icosphere(subdivisions=3, radius=0.99),
+           "cylinder": trimesh.creation.cylinder(radius=0.6, height=1.98, sections=32)}
+    for shape, mesh in gts.items():
+        (meshes / shape).mkdir(parents=True)
+        mesh.export(meshes / shape / "gt.ply")
+        for method, offset in (("sals", 0.002), ("sdf", 0.006)):
+            if shape == "cylinder" and method == "sdf":
+                continue
+            pred = mesh.subdivide()
+            pred = trimesh.Trimesh(pred.vertices + offset * pred.vertex_normals, pred.faces, process=False)
+            pred.export(meshes / shape / f"{method}.ply")
+
+
+class _Collect(HTMLParser):
+    def __init__(self):
+        super().__init__()
+        self.tags, self.img_src, self.links = [], [], []
+
+    def handle_starttag(self, tag, attrs):
+        a = dict(attrs)
+        self.tags.append(tag)
+        if tag == "img":
+            self.img_src.append(a.get("src", ""))
+        for key in ("src", "href"):
+            if a.get(key) and tag != "img":
+                self.links.append(a[key])
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    out = tmp_path_factory.mktemp("report")
+    write_fake_meshes(out / "meshes")
+    results, floor = make_results()
+    paths = reports.write_reports(results, floor, CONFIG, out, out / "meshes")
+    return paths, out
+
+
+def test_write_reports_contract_and_static_self_containment(report):
+    paths, out = report
+    assert sorted(paths) == ["report.html", "summary.md", "summary.tex", "timing.csv", "timing.md"]
+    page = paths["report.html"].read_text()
+    parsed = _Collect()
+    parsed.feed(page)
+    assert "script" not in parsed.tags and "link" not in parsed.tags  # no JS, no external CSS
+    assert parsed.img_src and all(s.startswith("data:image/") for s in parsed.img_src)
+    # 3 GT + 5 predictions x (shaded + error-coloured) thumbnails + 2 plots
+    assert sum(s.startswith("data:image/png") for s in parsed.img_src) == 3 + 2 * 5
+    assert sum(s.startswith("data:image/svg+xml") for s in parsed.img_src) == 2
+    assert all(link.startswith("#") for link in parsed.links)  # only in-page anchors
+    assert "MeshError: NaN loss at step 120" in page  # the failed jobs' error text
+    assert re.search(r"clipped at\s+0\.01", page)  # error colour scale stated
+
+
+def test_missing_meshes_dir_and_unreadable_mesh(tmp_path):
+    results, floor = make_results()
+    paths = reports.write_reports(results, floor, CONFIG, tmp_path / "a", None)
+    assert "No meshes directory" in paths["report.html"].read_text()
+    meshes = tmp_path / "meshes"
+    write_fake_meshes(meshes)
+    (meshes / "cube" / "sals.ply").write_text("not a mesh")
+    (meshes / "sphere" / "gt.ply").unlink()
+    page = reports.write_reports(results, floor, CONFIG, tmp_path / "b", meshes, gallery_limit=2)["report.html"].read_text()
+    assert "render failed" in page and "no GT mesh" in page and "Showing the first 2 of 3 shapes" in page
+
+
+def test_compare_runs_writes_every_file(tmp_path):
+    results, floor = make_results()
+    paths = reports.compare_runs([("a", results, floor, CONFIG), ("b", results, floor, CONFIG)], tmp_path)
+    assert sorted(paths) == ["report.html", "summary.md", "summary.tex", "timing.csv", "timing.md"]
+    assert "Runs side by side" in paths["report.html"].read_text()
+
+
+def _chromium(args: list[str], profile: Path) -> subprocess.CompletedProcess:
+    cmd = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+           "--disable-background-networking", "--disable-component-update", "--disable-sync",
+           "--disable-dev-shm-usage", f"--user-data-dir={profile}", *args]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=90)
+
+
+@needs_chromium
+def test_report_in_headless_browser(report, tmp_path):
+    paths, out = report
+    url = paths["report.html"].resolve().as_uri()
+    dom = _chromium(["--dump-dom", url], tmp_path / "profile-dom")
+    assert dom.returncode == 0, dom.stderr[-2000:]
+    parsed = _Collect()
+    parsed.feed(dom.stdout)
+    assert parsed.tags.count("table") >= 5 and "CD ×1e3 ↓" in dom.stdout  # summary, per shape, validity, timing
+    assert "floor (GT vs resample)" in dom.stdout and "sals" in dom.stdout
+    assert "4.500" in dom.stdout  # the CD x1e3 mean, rendered in the page
+    assert parsed.img_src and all(s.startswith("data:") for s in parsed.img_src)  # nothing from the network
+
+    shot = tmp_path / "report.png"
+    run = _chromium([f"--screenshot={shot}", "--window-size=1280,2000", "--hide-scrollbars", url],
+                    tmp_path / "profile-shot")
+    assert run.returncode == 0 and shot.is_file(), run.stderr[-2000:]
+    img = np.asarray(Image.open(shot).convert("RGB"))
+    assert img.shape[:2] == (2000, 1280)
+    colours = np.unique(img.reshape(-1, 3)[:: 7], axis=0)
+    assert len(colours) > 200  # text, table highlight, header gradient, plots: not a blank page
+    assert img[:60].mean() < 100  # the dark header band is at the top
+    keep = os.environ.get("SALSBENCH_KEEP_SCREENSHOT")
+    if keep:
+        Path(keep).mkdir(parents=True, exist_ok=True)
+        shutil.copy(shot, Path(keep) / "report.png")

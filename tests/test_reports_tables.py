@@ -1,0 +1,254 @@
+"""Tables contract of reports: summary.md / summary.tex / timing.csv / timing.md from hand-made frames.
+
+The fake run: 3 shapes x 2 methods x 2 seeds. sals: cd = 0.004 (+0.001 for seed 1), ecd = 0.02,
+ef1 = 0.6; sdf: cd = 0.008 (+0.001 for seed 1), ecd = 0.04, ef1 = 0.3, its 'cylinder' jobs fail and
+its 'sphere' seed-0 prediction has no edge points (ecd NaN, flag set, ef1 = 0). So by hand, in table
+units: sals CD mean = (4 + 5) / 2 = 4.500, sdf CD mean = 8.500, sals ECD 2.000, sdf ECD 4.000 over
+3 jobs with 1 NaN, sdf EF1 = (0 + 0.3 * 3) / 4 = 0.225, floor CD 1.100.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from reports.tables import (
+    build_summary,
+    metric_specs,
+    tau_column,
+    tau_from_column,
+    timing_frame,
+    write_comparison_tables,
+    as_runs,
+    write_tables,
+)
+
+SHAPES = ("cube", "sphere", "cylinder")
+METHODS = ("sals", "sdf")
+CONFIG = dict(dataset="builtin", mode="neural", budget="quick", grid=128, eval_points=None,
+              eval_points_effective=1_000_000, metric_preset="default", seeds=[0, 1], methods=list(METHODS),
+              shapes=list(SHAPES), device="cpu", cpu_model="Test CPU 3000", versions={"numpy": "2"})
+
+
+def make_results() -> tuple[pd.DataFrame, pd.DataFrame]:
+    rows = []
+    for shape in SHAPES:
+        for k, method in enumerate(METHODS):
+            for seed in (0, 1):
+                failed = shape == "cylinder" and method == "sdf"
+                no_edges = shape == "sphere" and method == "sdf" and seed == 0
+                row = dict(
+                    shape=shape, method=method, mode="neural", seed=seed, status="failed" if failed else "ok",
+                    error="MeshError: NaN loss at step 120" if failed else None,
+                    cd=np.nan if failed else 0.004 * (k + 1) + 0.001 * seed, nc=0.98 - 0.01 * k,
+                    f1_005=0.6 - 0.1 * k, f1_01=0.95 - 0.05 * k,
+                    ecd=np.nan if (failed or no_edges) else 0.02 * (k + 1),
+                    ef1=np.nan if failed else (0.0 if no_edges else 0.6 - 0.3 * k),
+                    ecd_flag=no_edges, n_vertices=100 * (k + 1), n_faces=200 * (k + 1),
+                    boundary_edges=2 * k, nonmanifold_edges=k, components=1 + k, watertight=(k == 0),
+                    sample_s=0.5, label_s=1.0, fit_s=30.0 + 10 * k + seed, query_s=2.0, extract_s=1.5,
+                    metrics_s=3.0, total_s=40.0 + 10 * k + seed, device="cpu",
+                )
+                if method == "sals":
+                    row.update(extract_edc_points_s=0.5, extract_qef_s=0.7, extract_faces_s=0.3)
+                rows.append(row)
+    floor = pd.DataFrame([dict(shape=s, cd=0.0011, nc=0.999, f1_005=0.9, f1_01=0.99, ecd=0.005, ef1=0.9,
+                               ecd_flag=False, n_vertices=8, n_faces=12, boundary_edges=0, nonmanifold_edges=0,
+                               components=1, watertight=True) for s in SHAPES])
+    return pd.DataFrame(rows), floor
+
+
+def md_tables(text: str) -> dict[str, list[list[str]]]:
+    """Markdown tables by their '## title': rows of stripped cells (header first, rule dropped)."""
+    out, title, rows = {}, None, []
+    for line in text.splitlines() + [""]:
+        if line.startswith("## "):
+            title, rows = line[3:].strip(), []
+        elif line.startswith("|") and title:
+            cells = [c.strip() for c in line.strip().strip("|").split("|")]
+            if not all(re.fullmatch(r":?-+:?", c) for c in cells):
+                rows.append(cells)
+        elif rows and title:
+            out.setdefault(title, rows)
+            rows = []
+    return out
+
+
+@pytest.fixture(scope="module")
+def written(tmp_path_factory):
+    results, floor = make_results()
+    out = tmp_path_factory.mktemp("tables")
+    return write_tables(results, floor, CONFIG, out), results, floor
+
+
+def test_files_written(written):
+    paths, _, _ = written
+    assert sorted(paths) == ["summary.md", "summary.tex", "timing.csv", "timing.md"]
+    assert all(p.is_file() and p.stat().st_size > 0 for p in paths.values())
+
+
+def test_mean_table_rows_units_bold_and_nan_count(written):
+    paths, _, _ = written
+    text = paths["summary.md"].read_text()
+    table = md_tables(text)["Mean over shapes and seeds"]
+    header, body = table[0], table[1:]
+    assert [r[0] for r in body] == ["sals", "sdf", "floor (GT vs resample)"]  # one row per method + floor
+    col = {h: i for i, h in enumerate(header)}
+    # arrows: down for CD/ECD, up for NC/F1/EF1; multipliers in the header
+    assert "CD ×1e3 ↓" in col and "ECD ×1e2 ↓" in col and "NC ↑" in col and "EF1 ↑" in col
+    assert "F1@0.005 ↑" in col and "F1@0.01 ↑" in col
+    sals, sdf, floor = body
+    assert sals[col["CD ×1e3 ↓"]] == "**4.500**"  # cd 0.004 and 0.005 -> 4.5e-3 -> 4.500, best (bold)
+    assert sdf[col["CD ×1e3 ↓"]] == "8.500"
+    assert sals[col["ECD ×1e2 ↓"]] == "**2.000**" and sdf[col["ECD ×1e2 ↓"]] == "4.000"
+    assert sals[col["EF1 ↑"]] == "**0.600**" and sdf[col["EF1 ↑"]] == "0.225"
+    assert sdf[col["ECD NaN"]] == "1" and sals[col["ECD NaN"]] == "0"
+    assert header.index("ECD NaN") == header.index("ECD ×1e2 ↓") + 1  # next to the ECD mean
+    assert (sals[col["jobs"]], sals[col["failed"]], sdf[col["jobs"]], sdf[col["failed"]]) == ("6", "0", "6", "2")
+    assert floor[col["CD ×1e3 ↓"]] == "1.100" and "**" not in "".join(floor)  # reference, never bold
+    assert "Protocol:" in text and "1,000,000" in text and "0.005, 0.01" in text and "128³" in text
+
+
+def test_median_std_and_per_shape_tables(written):
+    paths, _, _ = written
+    tables = md_tables(paths["summary.md"].read_text())
+    std = tables["Standard deviation over shapes and seeds"]
+    col = {h: i for i, h in enumerate(std[0])}
+    # sals CD x1e3 values 4,5,4,5,4,5: sample std = sqrt(6 * 0.25 / 5) = 0.5477
+    assert std[1][col["CD ×1e3 ↓"]] == f"{np.sqrt(1.5 / 5):.3f}"
+    assert "**" not in "".join(sum(std, []))  # no bold in the spread table
+    per_shape = tables["Per shape: CD ×1e3 ↓ (mean over seeds)"]
+    assert per_shape[0] == ["shape", "sals", "sdf", "floor"]
+    assert per_shape[1] == ["cube", "**4.500**", "8.500", "1.100"]
+    assert per_shape[3] == ["cylinder", "**4.500**", "failed", "1.100"]
+    ecd = tables["Per shape: ECD ×1e2 ↓ (mean over seeds)"]
+    assert ecd[2] == ["sphere", "**2.000**", "4.000", "0.500"]  # seed 0 NaN skipped, seed 1 = 4.000
+    validity = tables["Mesh validity of the predictions (mean over successful jobs)"]
+    vcol = {h: i for i, h in enumerate(validity[0])}
+    assert validity[1][vcol["watertight %"]] == "100" and validity[2][vcol["watertight %"]] == "0"
+    assert validity[2][vcol["boundary edges"]] == "2.0"
+    assert "cylinder / sdf / seed 0: MeshError: NaN loss at step 120" in paths["summary.md"].read_text()
+
+
+def _strip_escaped(tex: str) -> str:
+    return tex.replace(r"\{", "").replace(r"\}", "")
+
+
+def test_latex_is_structurally_sound(written, tmp_path):
+    paths, _, _ = written
+    tex = paths["summary.tex"].read_text()
+    body = _strip_escaped(tex)
+    depth = 0
+    for ch in body:  # balanced braces, never negative
+        depth += {"{": 1, "}": -1}.get(ch, 0)
+        assert depth >= 0
+    assert depth == 0
+    assert tex.count(r"\begin{tabular}") == tex.count(r"\end{tabular}") >= 5
+    assert tex.count(r"\begin{table}") == tex.count(r"\end{table}") == tex.count(r"\begin{tabular}")
+    assert r"\toprule" in tex and r"\midrule" in tex and r"\bottomrule" in tex
+    assert r"\textbf{4.500}" in tex and r"$\downarrow$" in tex and r"$\uparrow$" in tex
+    assert r"$\times 10^{3}$" in tex
+    # every row of every tabular has as many cells as the column spec has columns
+    for spec, inner in re.findall(r"\\begin\{tabular\}\{([lrc]+)\}(.*?)\\end\{tabular\}", tex, flags=re.S):
+        for line in inner.splitlines():
+            if line.endswith(r"\\"):
+                assert len(re.split(r"(?<!\\)&", line)) == len(spec), line
+    assert "_" not in re.sub(r"\\_|\\label\{[^}]*\}", "", tex.split("\n", 1)[1])  # underscores escaped
+    import shutil
+    import subprocess
+
+    if shutil.which("pdflatex"):
+        doc = tmp_path / "doc.tex"
+        doc.write_text("\\documentclass{article}\\usepackage{booktabs}\\begin{document}\n" + tex + "\\end{document}\n")
+        run = subprocess.run(["pdflatex", "-interaction=nonstopmode", "-halt-on-error", doc.name], cwd=tmp_path,
+                             capture_output=True, text=True, timeout=120)
+        assert run.returncode == 0, run.stdout[-2000:]
+
+
+def test_timing_csv_sums_and_means(written):
+    paths, results, _ = written
+    timing = pd.read_csv(paths["timing.csv"])
+    assert list(timing.columns) == ["method", "stage", "label", "level", "n_jobs", "mean_s", "median_s", "std_s",
+                                    "device"]
+    for method in METHODS:
+        t = timing[timing["method"] == method].set_index("stage")
+        stages = t[t["level"] == "stage"]
+        assert list(stages.index) == ["sample_s", "label_s", "fit_s", "query_s", "extract_s", "metrics_s"]
+        assert t.at["sum_of_stages", "mean_s"] == pytest.approx(stages["mean_s"].sum())
+        ok = results[(results["method"] == method) & (results["status"] == "ok")]
+        assert t.at["fit_s", "mean_s"] == pytest.approx(ok["fit_s"].mean())
+        assert t.at["total_s", "mean_s"] == pytest.approx(ok["total_s"].mean())
+    sals = timing[timing["method"] == "sals"].set_index("stage")
+    # extraction steps are listed but not added twice: 0.5 + 1 + 30.5 + 2 + 1.5 + 3 = 38.5
+    assert sals.at["sum_of_stages", "mean_s"] == pytest.approx(38.5)
+    assert sals.at["extract_qef_s", "level"] == "step" and sals.at["extract_qef_s", "mean_s"] == pytest.approx(0.7)
+    assert timing[timing["method"] == "sdf"]["n_jobs"].max() == 4  # failed cylinder jobs excluded
+    md = paths["timing.md"].read_text()
+    assert "Test CPU 3000" in md and "Device: cpu" in md
+    mean = md_tables(md)["Wall-clock seconds per job (mean)"]
+    assert mean[0] == ["stage", "sals", "sdf"]
+    rows = {r[0].strip("* "): r[1:] for r in mean[1:]}
+    assert rows["sum of stages"] == ["38.50", "48.50"] and rows["fitting"] == ["30.50", "40.50"]
+    assert rows["extraction: qef"] == ["0.70", "–"]
+
+
+def test_metric_specs_from_preset_and_from_columns():
+    cols = ["cd", "nc", "f1_003", "f1_005", "f1_01", "ecd", "ef1"]
+    ndc = metric_specs({"metric_preset": "ndc"}, cols)
+    assert [s.column for s in ndc] == ["cd", "nc", "f1_003", "ecd", "ef1"]
+    assert ndc[0].scale == 1e5 and ndc[0].header == "CD ×1e5 ↓" and ndc[2].name == "F1@0.003"
+    from_dict = metric_specs({"metric_preset": {"name": "x", "f1_thresholds": [0.01], "cd_scale": 1e4}}, cols)
+    assert [s.column for s in from_dict] == ["cd", "nc", "f1_01", "ecd", "ef1"] and from_dict[0].scale == 1e4
+    bare = metric_specs({}, ["nc", "f1_01", "f1_005", "ecd"])  # no preset: columns present, default units
+    assert [s.column for s in bare] == ["nc", "f1_005", "f1_01", "ecd"] and bare[-1].scale == 100
+    assert tau_from_column("f1_005") == 0.005 and tau_column(0.01) == "f1_01" and tau_column(0.003) == "f1_003"
+
+
+def test_ndc_preset_run_with_missing_columns(tmp_path):
+    results, floor = make_results()
+    results = results.drop(columns=["f1_005", "f1_01", "watertight", "components"]).assign(f1_003=0.5)
+    cfg = dict(CONFIG, metric_preset="ndc")
+    paths = write_tables(results, floor.drop(columns=["f1_005", "f1_01"]), cfg, tmp_path)
+    mean = md_tables(paths["summary.md"].read_text())["Mean over shapes and seeds"]
+    col = {h: i for i, h in enumerate(mean[0])}
+    assert "F1@0.003 ↑" in col and "F1@0.005 ↑" not in col
+    assert mean[1][col["CD ×1e5 ↓"]] == "**450.000**"  # 4.5e-3 x 1e5
+
+
+def test_bad_frames_give_one_line_errors(tmp_path):
+    results, floor = make_results()
+    with pytest.raises(ValueError, match=r"^results frame lacks column\(s\) method$"):
+        build_summary(results.drop(columns=["method"]), floor, CONFIG)
+    with pytest.raises(ValueError, match="must be a pandas DataFrame"):
+        build_summary({"shape": []}, floor, CONFIG)
+    # no floor, no timing, everything failed: still writes every table
+    dead = results.assign(status="failed", error="boom")[["shape", "method", "seed", "status", "error", "cd"]]
+    paths = write_tables(dead, None, {}, tmp_path)
+    mean = md_tables(paths["summary.md"].read_text())["Mean over shapes and seeds"]
+    assert [r[0] for r in mean[1:]] == ["sals", "sdf"] and mean[1][3] == "–"
+    assert pd.read_csv(paths["timing.csv"])["stage"].tolist() == ["sum_of_stages", "sum_of_stages"]
+
+
+def test_timing_frame_orders_unknown_stages_before_metrics():
+    results, _ = make_results()
+    t = timing_frame(results.assign(load_s=0.25, mystery_s=1.0), CONFIG)
+    stages = t[t["method"] == "sdf"]["stage"].tolist()
+    assert stages == ["load_s", "sample_s", "label_s", "fit_s", "query_s", "extract_s", "mystery_s", "metrics_s",
+                      "sum_of_stages", "total_s"]
+
+
+def test_compare_runs_side_by_side(tmp_path):
+    results, floor = make_results()
+    better = results.assign(cd=results["cd"] / 2)
+    runs = as_runs([("base", results, floor, CONFIG), {"name": "half", "results": better, "floor": floor,
+                                                       "config": CONFIG}])
+    paths, tables, timing = write_comparison_tables(runs, tmp_path)
+    table = md_tables(paths["summary.md"].read_text())["Runs side by side: mean over shapes and seeds"]
+    col = {h: i for i, h in enumerate(table[0])}
+    rows = [(r[0], r[1], r[col["CD ×1e3 ↓"]]) for r in table[1:]]
+    assert rows == [("base", "sals", "4.500"), ("base", "sdf", "8.500"), ("base", "floor (GT vs resample)", "1.100"),
+                    ("half", "sals", "**2.250**"), ("half", "sdf", "4.250"), ("half", "floor (GT vs resample)", "1.100")]
+    assert set(timing["run"]) == {"base", "half"} and paths["timing.md"].is_file() and paths["summary.tex"].is_file()
