@@ -1,0 +1,343 @@
+"""Executors: where the runner's tasks run. One job function (``benchmark.runner.run_task``) serves all.
+
+Every executor has the same two methods::
+
+    for spec, outcome in executor.run(fn, specs, on_stage=None):   # as tasks finish
+        ...                                                          # outcome: fn's result, or an exception
+    executor.close()
+
+``fn(spec, progress)`` must be a picklable module-level function that never raises for a job's own
+errors (``run_task`` turns them into failed results); an *exception* outcome therefore means the
+infrastructure lost the task (its worker process died, or Ray gave up after ``retries`` retries).
+The driver records it as a failed row with that error: nothing is lost silently.
+
+* :class:`LocalExecutor` -- in-process, sequential, in the given order (the default; stage progress).
+* :class:`ProcessExecutor` -- ``concurrent.futures.ProcessPoolExecutor`` with the *spawn* context,
+  ``workers`` processes, torch threads per worker ``max(1, cores // workers)``; stage progress comes
+  back through a queue. At most ``workers`` tasks are in flight, so a crashed worker (the pool is
+  then broken) costs only the in-flight tasks one attempt each: they are resubmitted to a fresh pool
+  up to ``retries`` times, then reported failed.
+* :class:`RayExecutor` -- Ray tasks. ``address=None`` starts a local instance (``workers`` CPUs),
+  ``'auto'`` joins a running cluster (``ray start --head`` / ``ray start --address=HEAD:6379``).
+  Resources per task: ``cpus_per_job`` CPUs; a fitting job (``spec.uses_fitting``) also asks for
+  ``gpus_per_job`` GPUs (fractions allowed) when the cluster has GPUs, while oracle/floor tasks ask
+  for CPUs only. Ray retries a task whose worker died ``retries`` times (``max_retries``).
+
+Results are identical whichever executor ran a task, up to floating-point reduction order: oracle
+mode and the metrics are bit-identical (no thread-count-dependent reductions); neural fitting on the
+CPU is deterministic for a given torch thread count, and the thread count differs between executors
+(local: all cores; process: cores // workers), which may change the last bits of the fitted weights.
+"""
+
+from __future__ import annotations
+
+import os
+import queue as _queue
+import sys
+from collections import deque
+from concurrent.futures import FIRST_COMPLETED, wait
+from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
+from typing import Any, Callable, Iterator, Sequence
+
+REPO = Path(__file__).resolve().parents[1]
+
+StageCallback = Callable[..., None]
+
+
+class WorkerLost(RuntimeError):
+    """A task's worker process died (killed, out of memory, segfault) and the retries are used up."""
+
+
+def available_cores() -> int:
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def threads_per_worker(workers: int, cores: int | None = None) -> int:
+    """Torch threads per worker process: ``max(1, cores // workers)``."""
+    return max(1, (cores or available_cores()) // max(1, int(workers)))
+
+
+def _stage_forwarder(on_stage: StageCallback | None, label: str):
+    if on_stage is None:
+        return None
+
+    def progress(stage: str, **info: Any) -> None:
+        on_stage(label, stage, **info)
+
+    return progress
+
+
+# =============================================================================================
+# local
+# =============================================================================================
+
+
+class LocalExecutor:
+    """Runs tasks one after the other in this process, in the given order."""
+
+    name = "local"
+
+    def run(self, fn: Callable, specs: Sequence, on_stage: StageCallback | None = None) -> Iterator[tuple[Any, Any]]:
+        for spec in specs:
+            if on_stage is not None:
+                on_stage(spec.label, "starting")
+            try:
+                outcome = fn(spec, _stage_forwarder(on_stage, spec.label))
+            except Exception as exc:  # noqa: BLE001 -- fn should not raise; if it does, report it
+                outcome = exc
+            yield spec, outcome
+
+    def close(self) -> None:
+        pass
+
+
+# =============================================================================================
+# process
+# =============================================================================================
+
+_WORKER_QUEUE = None
+
+
+def _process_init(threads: int, progress_queue) -> None:
+    """Pool initializer: pin thread counts before any heavy import, keep the progress queue."""
+    global _WORKER_QUEUE
+    _WORKER_QUEUE = progress_queue
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        os.environ[var] = str(threads)  # torch reads OMP_NUM_THREADS when it is first imported
+    if "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(threads)
+
+
+def _process_call(fn: Callable, spec, index: int):
+    def progress(stage: str, **info: Any) -> None:
+        if _WORKER_QUEUE is not None:
+            clean = {k: v for k, v in info.items() if isinstance(v, (int, float, str, type(None)))}
+            try:
+                _WORKER_QUEUE.put_nowait((index, stage, clean))
+            except Exception:  # noqa: BLE001 -- progress is best effort
+                pass
+
+    return fn(spec, progress)
+
+
+class ProcessExecutor:
+    """Runs tasks in ``workers`` spawned processes (see module docstring)."""
+
+    name = "process"
+
+    def __init__(self, workers: int | None = None, retries: int = 1, threads: int | None = None):
+        self.workers = max(1, int(workers or available_cores()))
+        self.retries = max(0, int(retries))
+        self.threads = int(threads) if threads else threads_per_worker(self.workers)
+        import multiprocessing as mp
+
+        self._ctx = mp.get_context("spawn")
+        self._queue = self._ctx.Queue()
+        self._pool = None
+
+    def _new_pool(self):
+        from concurrent.futures import ProcessPoolExecutor
+
+        return ProcessPoolExecutor(max_workers=self.workers, mp_context=self._ctx, initializer=_process_init,
+                                   initargs=(self.threads, self._queue))
+
+    def _drain(self, specs, on_stage) -> None:
+        while True:
+            try:
+                index, stage, info = self._queue.get_nowait()
+            except (_queue.Empty, EOFError, OSError):
+                return
+            if on_stage is not None:
+                on_stage(specs[index].label, stage, **info)
+
+    def run(self, fn: Callable, specs: Sequence, on_stage: StageCallback | None = None) -> Iterator[tuple[Any, Any]]:
+        """Run every spec; yield (spec, outcome) as each finishes.
+
+        A crashing worker breaks the whole pool, and the pool cannot say which task crashed it. So
+        the tasks in flight at that moment become *suspects*: each is re-run alone, and only a
+        crash while running alone counts against a task's retries. Innocent tasks are never
+        charged for another task's crash.
+        """
+        specs = list(specs)
+        todo = deque(range(len(specs)))
+        suspects: deque = deque()
+        attempts = [0] * len(specs)
+        running: dict = {}
+        while todo or suspects or running:
+            if self._pool is None:
+                self._pool = self._new_pool()
+            if suspects:
+                if not running:  # a suspect runs alone, so its crash is its own
+                    i = suspects.popleft()
+                    attempts[i] += 1
+                    running[self._pool.submit(_process_call, fn, specs[i], i)] = i
+            else:
+                while todo and len(running) < self.workers:
+                    i = todo.popleft()
+                    attempts[i] += 1
+                    running[self._pool.submit(_process_call, fn, specs[i], i)] = i
+            done, _ = wait(list(running), timeout=0.25, return_when=FIRST_COMPLETED)
+            self._drain(specs, on_stage)
+            alone = len(running) == 1
+            broken = []
+            for fut in done:
+                i = running.pop(fut)
+                try:
+                    outcome = fut.result()
+                except BrokenProcessPool:
+                    broken.append(i)
+                    continue
+                except Exception as exc:  # noqa: BLE001 -- e.g. an unpicklable result
+                    outcome = exc
+                yield specs[i], outcome
+            if not broken:
+                continue
+            for fut, i in list(running.items()):  # the rest of the broken pool's tasks are lost too
+                running.pop(fut)
+                try:
+                    outcome = fut.result(timeout=30)
+                except BrokenProcessPool:
+                    broken.append(i)
+                    continue
+                except Exception as exc:  # noqa: BLE001
+                    outcome = exc
+                yield specs[i], outcome
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool = None
+            for i in broken:
+                if not alone:  # not known to be the culprit: refund the attempt and isolate it
+                    attempts[i] -= 1
+                    suspects.append(i)
+                elif attempts[i] <= self.retries:
+                    suspects.append(i)
+                else:
+                    yield specs[i], WorkerLost(f"worker process died {attempts[i]} time(s) while running {specs[i].label}")
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+        try:
+            self._queue.close()
+        except (OSError, ValueError):
+            pass
+
+
+# =============================================================================================
+# ray
+# =============================================================================================
+
+
+def _ray_call(fn: Callable, spec, threads: int):
+    """Body of a Ray task: set torch threads to the task's CPU share, run the job function."""
+    os.environ["OMP_NUM_THREADS"] = str(threads)
+    try:
+        import torch
+
+        torch.set_num_threads(threads)
+    except ImportError:
+        pass
+    return fn(spec, None)
+
+
+class RayExecutor:
+    """Runs tasks as Ray tasks (see module docstring). Joins or starts Ray; shuts down only what it started."""
+
+    name = "ray"
+
+    def __init__(self, address: str | None = None, workers: int | None = None, retries: int = 1,
+                 gpus_per_job: float = 1.0, cpus_per_job: float = 1.0):
+        import logging
+
+        import ray
+
+        self.ray = ray
+        self.retries = max(0, int(retries))
+        self.gpus_per_job = float(gpus_per_job)
+        self.cpus_per_job = float(cpus_per_job)
+        self._started = False
+        if not ray.is_initialized():
+            common = dict(include_dashboard=False, ignore_reinit_error=True, log_to_driver=False,
+                          logging_level=logging.WARNING)
+            pythonpath = os.pathsep.join([str(REPO)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])
+            if address:
+                # a cluster may run on other machines: ship the suite's packages with the tasks
+                modules = [str(REPO / m) for m in ("benchmark", "methods", "datasets", "reports")
+                           if (REPO / m).is_dir()]
+                ray.init(address=address, runtime_env={"py_modules": modules,
+                                                       "env_vars": {"PYTHONPATH": pythonpath}}, **common)
+            else:
+                ray.init(num_cpus=int(workers or available_cores()),
+                         runtime_env={"env_vars": {"PYTHONPATH": pythonpath}}, **common)
+            self._started = True
+        resources = ray.cluster_resources()
+        self.cluster_gpus = float(resources.get("GPU", 0.0))
+        self.cluster_cpus = float(resources.get("CPU", 0.0))
+        self._remote = ray.remote(_ray_call)
+
+    def resources_for(self, spec) -> dict:
+        """Ray resources of one task: CPUs always; GPUs only for fitting jobs on a cluster with GPUs."""
+        gpus = self.gpus_per_job if (getattr(spec, "uses_fitting", False) and self.cluster_gpus > 0) else 0.0
+        return {"num_cpus": self.cpus_per_job, "num_gpus": gpus}
+
+    def run(self, fn: Callable, specs: Sequence, on_stage: StageCallback | None = None) -> Iterator[tuple[Any, Any]]:
+        ray = self.ray
+        pending = {}
+        for spec in specs:
+            res = self.resources_for(spec)
+            threads = max(1, int(res["num_cpus"]))
+            ref = self._remote.options(max_retries=self.retries, retry_exceptions=False, **res).remote(fn, spec, threads)
+            pending[ref] = spec
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1, timeout=1.0)
+            for ref in ready:
+                spec = pending.pop(ref)
+                try:
+                    outcome = ray.get(ref)
+                except Exception as exc:  # noqa: BLE001 -- WorkerCrashedError, RayTaskError, ...
+                    outcome = exc
+                yield spec, outcome
+            if on_stage is not None and pending:
+                on_stage(f"{len(pending)} task(s)", "queued/running on ray")
+
+    def close(self) -> None:
+        if self._started and self.ray.is_initialized():
+            self.ray.shutdown()
+            self._started = False
+
+
+# =============================================================================================
+
+
+def make_executor(cfg: dict):
+    """The executor named by ``cfg['executor']`` with the config's workers/address/retries/resources."""
+    kind = cfg.get("executor", "local")
+    if kind == "local":
+        return LocalExecutor()
+    if kind == "process":
+        return ProcessExecutor(workers=cfg.get("workers"), retries=cfg.get("retries", 1))
+    if kind == "ray":
+        return RayExecutor(address=cfg.get("address"), workers=cfg.get("workers"), retries=cfg.get("retries", 1),
+                           gpus_per_job=cfg.get("gpus_per_job", 1.0), cpus_per_job=cfg.get("cpus_per_job", 1.0))
+    raise ValueError(f"unknown executor '{kind}'; known: local, process, ray")
+
+
+def ray_available() -> tuple[bool, str]:
+    """(importable, reason) for skip messages."""
+    try:
+        import ray  # noqa: F401
+
+        return True, ""
+    except ImportError as exc:
+        return False, f"ray is not installed ({exc}); pip install 'ray>=2.9' to run the Ray executor"
+
+
+__all__ = ["LocalExecutor", "ProcessExecutor", "RayExecutor", "WorkerLost", "make_executor", "threads_per_worker",
+           "available_cores", "ray_available"]
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit("benchmark.executors is a library; run run_benchmark.py --executor ...")

@@ -1,0 +1,277 @@
+"""The results database of a run: one SQLite file, ``<run dir>/results.db``.
+
+The driver (``benchmark.runner``) is its only writer; every finished job is committed at once (WAL
+journal), so killing the process loses at most the jobs in flight. Readers (reports, ``sqlite3``,
+pandas) may open it at any time.
+
+Schema (``SCHEMA_VERSION`` 1)
+-----------------------------
+``jobs`` -- one row per job, primary key ``config_hash`` (sha256 of the job's defining settings, see
+:class:`benchmark.runner.JobSpec`); a re-run of a failed job replaces its row.
+
+    config_hash TEXT PK, shape TEXT, method TEXT, mode TEXT, seed INTEGER, status TEXT ('ok'|'failed'),
+    error TEXT (one line), traceback TEXT, params TEXT (JSON), budget TEXT, grid INTEGER,
+    eval_points INTEGER, metric_preset TEXT, shape_hash TEXT, shape_kind TEXT, fit_loss REAL,
+    attempts INTEGER, cache TEXT (which caches hit, comma separated), mesh_path TEXT (relative to the
+    run dir), device TEXT, host TEXT, versions TEXT (JSON), info TEXT (JSON), started TEXT,
+    finished TEXT (ISO 8601 UTC), extra TEXT (JSON of non-scalar values)
+
+    plus one column per metric (``cd``, ``nc``, ``f1_005``, ... as returned by
+    ``benchmark.metrics.evaluate``; raw units) and per timing (``sample_s``, ``fit_s``, ...;
+    wall-clock seconds), added with ``ALTER TABLE`` the first time a key appears. Booleans are
+    stored as 0/1, strings as TEXT. A metric key that clashes with a fixed column is stored as
+    ``metric_<key>``.
+
+``floor`` -- one row per shape: the GT scored against a resample of itself
+(``benchmark.metrics.floor``), primary key ``floor_hash``; columns ``shape, shape_hash, shape_kind,
+source, gt_vertices, gt_faces, status, error, seed, eval_points, metric_preset, mesh_path, finished``
+plus dynamic metric/timing columns as in ``jobs``.
+
+``meta`` -- ``key TEXT PK, value TEXT``: ``schema_version`` and ``config`` (the latest resolved
+configuration, JSON).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import sqlite3
+from pathlib import Path
+from typing import Any, Iterable, Mapping
+
+import numpy as np
+import pandas as pd
+
+SCHEMA_VERSION = 1
+DB_NAME = "results.db"
+
+JOB_COLUMNS: dict[str, str] = {
+    "config_hash": "TEXT PRIMARY KEY",
+    "shape": "TEXT",
+    "method": "TEXT",
+    "mode": "TEXT",
+    "seed": "INTEGER",
+    "status": "TEXT",
+    "error": "TEXT",
+    "traceback": "TEXT",
+    "params": "TEXT",
+    "budget": "TEXT",
+    "grid": "INTEGER",
+    "eval_points": "INTEGER",
+    "metric_preset": "TEXT",
+    "shape_hash": "TEXT",
+    "shape_kind": "TEXT",
+    "fit_loss": "REAL",
+    "attempts": "INTEGER",
+    "cache": "TEXT",
+    "mesh_path": "TEXT",
+    "device": "TEXT",
+    "host": "TEXT",
+    "versions": "TEXT",
+    "info": "TEXT",
+    "started": "TEXT",
+    "finished": "TEXT",
+    "extra": "TEXT",
+}
+
+FLOOR_COLUMNS: dict[str, str] = {
+    "floor_hash": "TEXT PRIMARY KEY",
+    "shape": "TEXT",
+    "shape_hash": "TEXT",
+    "shape_kind": "TEXT",
+    "source": "TEXT",
+    "gt_vertices": "INTEGER",
+    "gt_faces": "INTEGER",
+    "status": "TEXT",
+    "error": "TEXT",
+    "seed": "INTEGER",
+    "eval_points": "INTEGER",
+    "metric_preset": "TEXT",
+    "mesh_path": "TEXT",
+    "finished": "TEXT",
+    "extra": "TEXT",
+}
+
+#: Keys of ``metrics.evaluate``'s result that restate the protocol; recorded by fixed columns instead.
+PROTOCOL_KEYS = ("preset", "n_points", "seed")
+
+_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+
+def column_name(key: str, fixed: Mapping[str, str]) -> str:
+    """SQL column for a metric/timing key: the key itself, ``metric_<key>`` if it clashes with a
+    fixed column; anything that is not an identifier is rewritten with underscores."""
+    name = re.sub(r"[^A-Za-z0-9_]", "_", str(key))
+    if not _NAME.match(name):
+        name = "m_" + name
+    return f"metric_{name}" if name in fixed else name
+
+
+def scalar(value: Any) -> tuple[bool, Any]:
+    """(is a scalar, SQL value): numbers -> float/int, bools -> 0/1, strings as is, None -> NULL."""
+    if value is None:
+        return True, None
+    if isinstance(value, (bool, np.bool_)):
+        return True, int(bool(value))
+    if isinstance(value, (int, np.integer)):
+        return True, int(value)
+    if isinstance(value, (float, np.floating)):
+        return True, float(value)
+    if isinstance(value, str):
+        return True, value
+    return False, None
+
+
+def _json(value: Any) -> str:
+    return json.dumps(value, sort_keys=True, default=_json_default)
+
+
+def _json_default(value):
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, (np.integer,)):
+        return int(value)
+    if isinstance(value, (np.floating,)):
+        return float(value)
+    if isinstance(value, (np.bool_,)):
+        return bool(value)
+    if isinstance(value, Path):
+        return str(value)
+    return repr(value)
+
+
+class ResultsDB:
+    """The results database of one run directory (created on first use).
+
+    >>> db = ResultsDB(run_dir / "results.db")      # doctest: +SKIP
+    >>> db.write_job(row)                             # commits at once
+    >>> db.ok_hashes()                                # jobs that need not run again
+    """
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.conn = sqlite3.connect(str(self.path), timeout=60.0, isolation_level=None)
+        self.conn.execute("PRAGMA journal_mode=WAL")
+        self.conn.execute("PRAGMA synchronous=NORMAL")
+        self._create()
+
+    # -- schema -----------------------------------------------------------------------------
+    def _create(self) -> None:
+        cols = ", ".join(f'"{k}" {t}' for k, t in JOB_COLUMNS.items())
+        self.conn.execute(f"CREATE TABLE IF NOT EXISTS jobs ({cols})")
+        cols = ", ".join(f'"{k}" {t}' for k, t in FLOOR_COLUMNS.items())
+        self.conn.execute(f"CREATE TABLE IF NOT EXISTS floor ({cols})")
+        self.conn.execute("CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT)")
+        stored = self.get_meta("schema_version")
+        if stored is None:
+            self.set_meta("schema_version", str(SCHEMA_VERSION))
+        elif int(stored) != SCHEMA_VERSION:
+            raise RuntimeError(f"{self.path}: results database schema {stored}, this version reads {SCHEMA_VERSION}")
+
+    def columns(self, table: str) -> list[str]:
+        return [r[1] for r in self.conn.execute(f'PRAGMA table_info("{table}")')]
+
+    def _ensure_columns(self, table: str, values: Mapping[str, Any]) -> None:
+        have = set(self.columns(table))
+        for key, value in values.items():
+            if key not in have:
+                sql_type = "TEXT" if isinstance(value, str) else "REAL"
+                self.conn.execute(f'ALTER TABLE "{table}" ADD COLUMN "{key}" {sql_type}')
+                have.add(key)
+
+    # -- meta -------------------------------------------------------------------------------
+    def get_meta(self, key: str) -> str | None:
+        row = self.conn.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
+        return None if row is None else row[0]
+
+    def set_meta(self, key: str, value: str) -> None:
+        self.conn.execute("INSERT OR REPLACE INTO meta (key, value) VALUES (?, ?)", (key, value))
+
+    # -- writing ----------------------------------------------------------------------------
+    @staticmethod
+    def flatten(fixed: Mapping[str, Any], measured: Iterable[Mapping[str, Any]], fixed_columns: Mapping[str, str]) -> dict:
+        """One SQL row: the fixed fields (dicts/lists JSON-encoded) plus every scalar of the
+        ``measured`` dicts as its own column; non-scalars go to the ``extra`` JSON column."""
+        row: dict[str, Any] = {}
+        extra: dict[str, Any] = {}
+        for key, value in fixed.items():
+            if key not in fixed_columns:
+                raise KeyError(f"'{key}' is not a fixed column")
+            row[key] = _json(value) if isinstance(value, (dict, list, tuple)) else scalar(value)[1]
+        for values in measured:
+            for key, value in values.items():
+                if key in PROTOCOL_KEYS:
+                    continue
+                ok, sql_value = scalar(value)
+                if ok:
+                    row[column_name(key, fixed_columns)] = sql_value
+                else:
+                    extra[key] = value
+        if extra:
+            row["extra"] = _json(extra)
+        return row
+
+    def _upsert(self, table: str, row: Mapping[str, Any]) -> None:
+        self._ensure_columns(table, row)
+        names = ", ".join(f'"{k}"' for k in row)
+        marks = ", ".join("?" for _ in row)
+        self.conn.execute("BEGIN IMMEDIATE")
+        try:
+            self.conn.execute(f'INSERT OR REPLACE INTO "{table}" ({names}) VALUES ({marks})', tuple(row.values()))
+            self.conn.execute("COMMIT")
+        except BaseException:
+            self.conn.execute("ROLLBACK")
+            raise
+
+    def write_job(self, fixed: Mapping[str, Any], metrics: Mapping[str, Any] | None = None,
+                  timings: Mapping[str, Any] | None = None) -> None:
+        """Insert (or replace) one job row and commit. ``fixed`` holds :data:`JOB_COLUMNS` fields."""
+        if "config_hash" not in fixed:
+            raise KeyError("a job row needs its config_hash")
+        self._upsert("jobs", self.flatten(fixed, [metrics or {}, timings or {}], JOB_COLUMNS))
+
+    def write_floor(self, fixed: Mapping[str, Any], metrics: Mapping[str, Any] | None = None,
+                    timings: Mapping[str, Any] | None = None) -> None:
+        """Insert (or replace) one floor row and commit. ``fixed`` holds :data:`FLOOR_COLUMNS` fields."""
+        if "floor_hash" not in fixed:
+            raise KeyError("a floor row needs its floor_hash")
+        self._upsert("floor", self.flatten(fixed, [metrics or {}, timings or {}], FLOOR_COLUMNS))
+
+    # -- reading ----------------------------------------------------------------------------
+    def ok_hashes(self, table: str = "jobs") -> set[str]:
+        """Hashes of rows with status 'ok' (jobs or floor rows that need not run again)."""
+        key = "config_hash" if table == "jobs" else "floor_hash"
+        return {r[0] for r in self.conn.execute(f'SELECT "{key}" FROM "{table}" WHERE status = ?', ("ok",))}
+
+    def attempts(self) -> dict[str, int]:
+        return {h: int(a or 0) for h, a in self.conn.execute("SELECT config_hash, attempts FROM jobs")}
+
+    def frame(self, table: str = "jobs") -> pd.DataFrame:
+        """The table as a DataFrame (NULL -> NaN/None), in insertion order."""
+        df = pd.read_sql_query(f'SELECT * FROM "{table}" ORDER BY rowid', self.conn)
+        for _, name, sql_type, *_ in self.conn.execute(f'PRAGMA table_info("{table}")'):
+            if sql_type.upper() == "REAL" and name in df.columns:  # all-NULL columns come back as None
+                df[name] = pd.to_numeric(df[name], errors="coerce").astype(float)
+        return df
+
+    def close(self) -> None:
+        try:
+            self.conn.close()
+        except sqlite3.Error:
+            pass
+
+    def __enter__(self) -> "ResultsDB":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def open_run_db(run_dir: str | Path, must_exist: bool = False) -> ResultsDB:
+    """The database of a run directory; ``must_exist`` raises FileNotFoundError (one line) if absent."""
+    path = Path(run_dir) / DB_NAME
+    if must_exist and not path.is_file():
+        raise FileNotFoundError(f"{run_dir}: no {DB_NAME} (not a salsbench run directory?)")
+    return ResultsDB(path)
+

@@ -1,0 +1,209 @@
+"""Executors (benchmark.executors): local, process and Ray give the same results; failures are recorded.
+
+Tolerance: oracle mode is deterministic (exact fields, seeded metric samples, no thread-count
+dependent reductions), so the tables of the three executors must be *identical*; only timings,
+host/device strings and timestamps may differ. (Neural fits differ at most in the last bits between
+thread counts: local uses all cores, process ``cores // workers``.)
+
+The Ray tests start one local instance (2 CPUs) for the module and skip, with the reason, when ray
+is not installed.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from benchmark.executors import LocalExecutor, ProcessExecutor, WorkerLost, ray_available, threads_per_worker
+from benchmark.runner import main
+from tests.test_runner import PLUGIN, register_fakes
+
+REPO = Path(__file__).resolve().parents[1]
+RAY_OK, RAY_REASON = ray_available()
+
+
+# ---------------------------------------------------------------------------------------------
+# trivial tasks (module level: picklable by reference for spawned processes and Ray workers)
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Spec:
+    i: int
+    die: bool = False
+    uses_fitting: bool = False
+
+    @property
+    def label(self) -> str:
+        return f"task{self.i}"
+
+
+def _square(spec: _Spec, progress=None):
+    if progress is not None:
+        progress("computing", loss=float(spec.i))
+    if spec.die:
+        os._exit(17)  # simulate a worker killed by the OOM killer / a segfault
+    return spec.i * spec.i
+
+
+def test_threads_per_worker():
+    assert threads_per_worker(1, cores=2) == 2
+    assert threads_per_worker(2, cores=2) == 1
+    assert threads_per_worker(4, cores=2) == 1      # never 0
+    assert threads_per_worker(3, cores=16) == 5
+
+
+def test_local_executor_runs_in_order_with_stages():
+    stages = []
+    got = list(LocalExecutor().run(_square, [_Spec(i) for i in range(4)], on_stage=lambda *a, **k: stages.append((a, k))))
+    assert [(s.i, r) for s, r in got] == [(0, 0), (1, 1), (2, 4), (3, 9)]
+    assert (("task2", "computing"), {"loss": 2.0}) in stages
+
+
+def test_process_executor_same_results_and_stage_reports():
+    stages = []
+    ex = ProcessExecutor(workers=2, retries=0)
+    try:
+        got = sorted((s.i, r) for s, r in ex.run(_square, [_Spec(i) for i in range(5)],
+                                                 on_stage=lambda label, stage, **k: stages.append(label)))
+    finally:
+        ex.close()
+    assert got == [(i, i * i) for i in range(5)]
+    assert ex.threads == threads_per_worker(2)
+    assert stages, "stage reports travel back from the workers"
+
+
+def test_process_executor_dead_worker_is_retried_then_reported():
+    ex = ProcessExecutor(workers=2, retries=1)
+    try:
+        got = {s.i: r for s, r in ex.run(_square, [_Spec(0), _Spec(1, die=True), _Spec(2), _Spec(3)])}
+    finally:
+        ex.close()
+    assert set(got) == {0, 1, 2, 3}                            # nothing lost silently
+    assert isinstance(got[1], WorkerLost) and "died 2 time(s)" in str(got[1])
+    assert got[0] == 0 and got[2] == 4 and got[3] == 9          # the others finish (retried if caught in the crash)
+
+
+# ---------------------------------------------------------------------------------------------
+# the real pipeline: local vs process vs ray on 2 shapes x 2 methods + a corrupt mesh file
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def mesh_dir(tmp_path_factory):
+    """A 'meshes' dataset folder: two builtin shapes as OBJ files plus one corrupt file."""
+    from datasets import get_dataset, save_mesh
+
+    root = tmp_path_factory.mktemp("meshes")
+    ds = get_dataset("builtin")
+    for name in ds.names()[:2]:
+        shape = ds.load(name)
+        save_mesh(root / f"{name}.obj", shape.vertices, shape.faces)
+    (root / "zz_corrupt.obj").write_text("v 0 0 0\nv 1 0 0\nf 1 2 7\nthis is not a mesh\n")
+    return root
+
+
+def _methods():
+    from methods.base import available_methods
+
+    real = [m for m in ("sdf", "sals") if m in available_methods()]
+    return real if len(real) == 2 else ["test_sdf", "test_occ"]
+
+
+def _run(mesh_dir: Path, out: Path, cache: Path, *executor: str) -> tuple[pd.DataFrame, float]:
+    register_fakes()
+    t = time.perf_counter()
+    code = main(["--methods", *_methods(), "--dataset", "meshes", "--data-dir", str(mesh_dir), "--mode", "oracle",
+                 "--grid", "40", "--eval-points", "20000", "--out", str(out), "--cache-dir", str(cache),
+                 "--no-cache", "--plugin", PLUGIN, "--quiet", *executor])
+    wall = time.perf_counter() - t
+    assert code == 0
+    return pd.read_csv(out / "results.csv"), wall
+
+
+VOLATILE = ("started", "finished", "host", "device", "cache", "attempts")
+
+
+def _stable(df: pd.DataFrame) -> pd.DataFrame:
+    keep = [c for c in df.columns if not c.endswith("_s") and c not in VOLATILE]
+    return df[keep].reset_index(drop=True)
+
+
+@pytest.fixture(scope="module")
+def local_table(mesh_dir, tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("local")
+    return _run(mesh_dir, tmp / "run", tmp / "cache", "--executor", "local")
+
+
+def _check_table(df: pd.DataFrame) -> None:
+    good = df[df["shape"] != "zz_corrupt"]
+    bad = df[df["shape"] == "zz_corrupt"]
+    assert len(good) == 4 and (good.status == "ok").all(), good[["shape", "method", "error"]]
+    assert len(bad) == 2 and (bad.status == "failed").all()
+    assert bad.error.str.startswith("loading: MeshError").all() and not bad.error.str.contains("\n").any()
+
+
+def test_local_table_has_the_failure_recorded(local_table):
+    _check_table(local_table[0])
+
+
+def test_process_executor_gives_the_local_table(mesh_dir, tmp_path, local_table):
+    df, wall = _run(mesh_dir, tmp_path / "run", tmp_path / "cache", "--executor", "process", "--workers", "2")
+    _check_table(df)
+    pd.testing.assert_frame_equal(_stable(df), _stable(local_table[0]))
+    print(f"wall time local {local_table[1]:.1f} s, process(2) {wall:.1f} s, ratio {wall / local_table[1]:.2f}")
+
+
+# ---------------------------------------------------------------------------------------------
+# Ray
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def ray_instance():
+    if not RAY_OK:
+        pytest.skip(RAY_REASON)
+    import ray
+
+    pythonpath = os.pathsep.join([str(REPO)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False,
+             runtime_env={"env_vars": {"PYTHONPATH": pythonpath}})
+    yield ray
+    ray.shutdown()
+
+
+def test_ray_executor_gives_the_local_table(ray_instance, mesh_dir, tmp_path, local_table):
+    df, wall = _run(mesh_dir, tmp_path / "run", tmp_path / "cache", "--executor", "ray")
+    _check_table(df)
+    pd.testing.assert_frame_equal(_stable(df), _stable(local_table[0]))
+    print(f"wall time local {local_table[1]:.1f} s, ray {wall:.1f} s, ratio {wall / local_table[1]:.2f}")
+
+
+def test_ray_dead_worker_is_reported_failed_and_others_finish(ray_instance):
+    from benchmark.executors import RayExecutor
+
+    ex = RayExecutor(retries=0)
+    try:
+        got = {s.i: r for s, r in ex.run(_square, [_Spec(0), _Spec(1, die=True), _Spec(2)])}
+    finally:
+        ex.close()
+    assert got[0] == 0 and got[2] == 4
+    assert isinstance(got[1], Exception)  # WorkerCrashedError: recorded as a failed row by the driver
+    assert ray_instance.is_initialized()  # the executor joined the instance and did not shut it down
+
+
+def test_ray_resources_ask_gpus_only_for_fitting_jobs(ray_instance):
+    from benchmark.executors import RayExecutor
+
+    ex = RayExecutor(gpus_per_job=0.5, cpus_per_job=1)
+    ex.cluster_gpus = 2.0  # pretend the cluster has GPUs
+    assert ex.resources_for(_Spec(0, uses_fitting=True)) == {"num_cpus": 1.0, "num_gpus": 0.5}
+    assert ex.resources_for(_Spec(0, uses_fitting=False)) == {"num_cpus": 1.0, "num_gpus": 0.0}
+    ex.cluster_gpus = 0.0
+    assert ex.resources_for(_Spec(0, uses_fitting=True))["num_gpus"] == 0.0
