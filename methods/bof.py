@@ -15,6 +15,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+from scipy.special import expit
 import torch
 import torch.nn.functional as F
 
@@ -51,7 +52,7 @@ class BOFMethod(Method):
         eps = self.params["near_eps"]
         near = query.near_level(level, float(np.log((1.0 - eps) / eps)))
         logits, _, info = query.sparse_grid_points(model, N, near, device, stride=self.params["stride"])
-        prob = 1.0 / (1.0 + np.exp(-logits[..., 0].astype(np.float64)))
+        prob = expit(logits[..., 0].astype(np.float64))
         return prob.astype(np.float32), {"query_s": time.perf_counter() - t, "query_fraction": info.fraction}
 
     def extract(self, grid_field, N, query=None) -> Extraction:

@@ -22,6 +22,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+from scipy.special import expit
 import torch
 import torch.nn.functional as F
 
@@ -76,7 +77,7 @@ class SALSMethod(Method):
         out, _, info = query.sparse_grid_edges(model, N, near, device, stride=self.params["stride"],
                                                edge_fill=np.array([-30.0, 0.0], dtype=np.float32))
         ids = np.flatnonzero(out[:, 0] > _logit(self.params["o_threshold"]))
-        s = (1.0 / (1.0 + np.exp(-out[ids, 1].astype(np.float64)))).astype(np.float32)
+        s = expit(out[ids, 1].astype(np.float64)).astype(np.float32)
         t1 = time.perf_counter()
         normals = None
         if self.params["normals"] and len(ids):

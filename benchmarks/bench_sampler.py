@@ -1,0 +1,21 @@
+"""Speed of the shared sampler (SPEC section 3): five-group points + segments for one shape.
+
+    .venv/bin/python -m pytest benchmarks/bench_sampler.py -o python_files='bench_*.py' --benchmark-enable
+"""
+
+import pytest
+
+from benchmark.sampler import sample_training_data
+from datasets import get_dataset
+
+
+@pytest.fixture(scope="module")
+def shape():
+    ds = get_dataset("builtin")
+    return ds.load(ds.names()[0])
+
+
+@pytest.mark.parametrize("total", [200_000, 2_000_000])
+def test_sample_training_data(benchmark, shape, total):
+    samples = benchmark(sample_training_data, shape.vertices, shape.faces, total, 0, shape.content_hash)
+    assert len(samples) == total

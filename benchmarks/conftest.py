@@ -1,0 +1,1 @@
+"""pytest-benchmark speed measurements: not part of the default test run (see README, "Benchmarks")."""
