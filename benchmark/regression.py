@@ -117,7 +117,8 @@ def verify_manifest(data_dir: Path, manifest: Path = BASELINES / "abc_subset.sha
     return problems
 
 
-def run_tier(tier: Tier, data_dir: Path, out_dir: Path, python: str = sys.executable) -> pd.DataFrame:
+def run_tier(tier: Tier, data_dir: Path, out_dir: Path, python: str = sys.executable,
+             extra_args: tuple[str, ...] = ()) -> pd.DataFrame:
     """Run the tier's two benchmark runs (subset + non-manifold pairs); return their results."""
     frames = []
     for dataset, list_file in (("abc", "abc_subset.txt"), ("abc-nonmanifold", "abc_subset_nonmanifold.txt")):
@@ -125,7 +126,7 @@ def run_tier(tier: Tier, data_dir: Path, out_dir: Path, python: str = sys.execut
         cmd = [
             python, str(REPO / "run_benchmark.py"), "--methods", *METHODS, "--dataset", dataset,
             "--data-dir", str(data_dir), "--list", str(BASELINES / list_file), "--out", str(run_dir),
-            "--quiet", *tier.run_args,
+            "--quiet", *tier.run_args, *extra_args,
         ]
         print("$ " + " ".join(cmd), flush=True)
         proc = subprocess.run(cmd, cwd=REPO)
@@ -213,6 +214,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--update-baselines", action="store_true",
                         help="rewrite reports/baselines/<tier>/ from this run instead of comparing")
     parser.add_argument("--work-dir", type=Path, default=None, help="where the runs go (default: a temporary folder)")
+    parser.add_argument("--threads", type=int, default=None,
+                        help="torch threads per job (to measure the neural tier's run-to-run spread: 1 vs 2)")
     args = parser.parse_args(argv)
 
     if not args.data_dir.is_dir():
@@ -231,7 +234,8 @@ def main(argv: list[str] | None = None) -> int:
     failed = False
     for tier in tiers:
         try:
-            results = baseline_columns(run_tier(tier, args.data_dir, work))
+            extra = ("--threads", str(args.threads)) if args.threads else ()
+            results = baseline_columns(run_tier(tier, args.data_dir, work, extra_args=extra))
         except RegressionError as exc:
             print(f"regression tier '{tier.name}': {exc}", file=sys.stderr)
             failed = True

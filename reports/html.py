@@ -44,6 +44,10 @@ DEFAULT_ERROR_VMAX = 0.01  # canonical units; = the default protocol's F1@0.01 t
 GALLERY_LIMIT = 24
 
 
+#: Meshes with more faces are drawn from a seeded random subset of this many faces (thumbnails only).
+MAX_RENDER_FACES = 300_000
+
+
 def method_colors(methods: list[str]) -> dict[str, str]:
     spare = iter(PALETTE * 4)
     return {m: METHOD_COLORS.get(m.lower()) or next(spare) for m in methods}
@@ -293,6 +297,9 @@ def gallery_html(results: pd.DataFrame, floor, summary: Summary, meshes_dir: Pat
                     cells.append((m, _placeholder("missing", "empty mesh", "the prediction has no faces"), "",
                                   _shape_metrics_text(results, shape, m, summary)))
                     continue
+                if len(F) > MAX_RENDER_FACES:  # a thumbnail cannot show more; keeps huge outputs cheap
+                    V, F = render.face_subset(V, F, MAX_RENDER_FACES)
+                    note = (note + " · " if note else "") + f"thumbnail of a random {MAX_RENDER_FACES:,}-face subset"
                 shaded = _img(render.render_mesh(V, F, size=(size, size), bounds=bounds,
                                                  base_color=render.BASE_COLOR), f"{shape} {m}")
                 if gt is not None and len(gt[1]):

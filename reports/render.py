@@ -155,6 +155,16 @@ def rasterize(screen: np.ndarray, depth: np.ndarray, faces: np.ndarray, width: i
     return face_id.reshape(height, width), bary.reshape(height, width, 3), zbuf.reshape(height, width)
 
 
+def face_subset(vertices, faces, max_faces: int, seed: int = 0):
+    """A seeded random subset of at most ``max_faces`` faces, with unused vertices dropped."""
+    faces = np.asarray(faces, dtype=np.int64)
+    if len(faces) <= max_faces:
+        return np.asarray(vertices), faces
+    keep = np.sort(np.random.default_rng(seed).choice(len(faces), max_faces, replace=False))
+    used, inverse = np.unique(faces[keep], return_inverse=True)
+    return np.asarray(vertices)[used], inverse.reshape(-1, 3)
+
+
 def render_mesh(
     vertices,
     faces,

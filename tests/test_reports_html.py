@@ -221,3 +221,17 @@ def test_report_in_headless_browser(report, tmp_path):
     if keep:
         Path(keep).mkdir(parents=True, exist_ok=True)
         shutil.copy(shot, Path(keep) / "report.png")
+
+
+def test_face_subset_keeps_a_seeded_subset_and_compacts_vertices():
+    from reports.render import face_subset
+
+    V = np.arange(30, dtype=float).reshape(10, 3)
+    F = np.array([[0, 1, 2], [3, 4, 5], [6, 7, 8], [7, 8, 9]])
+    V2, F2 = face_subset(V, F, 2)
+    assert F2.shape == (2, 3) and len(V2) == len(np.unique(F2)) and F2.max() == len(V2) - 1
+    # every kept triangle is one of the originals (same coordinates)
+    originals = {tuple(map(tuple, V[f])) for f in F}
+    assert all(tuple(map(tuple, V2[f])) in originals for f in F2)
+    assert np.array_equal(face_subset(V, F, 2)[1], F2)  # seeded
+    assert face_subset(V, F, 10)[1] is not None and len(face_subset(V, F, 10)[1]) == 4
