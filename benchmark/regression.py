@@ -14,11 +14,14 @@ Tiers and tolerances (a value passes when ``|now - baseline| <= atol + rtol * |b
 * ``oracle``: exact fields, all four methods, grid 128, seed 0. Deterministic: the same machine
   gives bit-identical tables, so the tolerance only absorbs floating-point noise across CPUs/BLAS
   (rtol 1e-5 on metrics; mesh counts rtol 1e-3, i.e. a handful of faces out of ~10^5).
-* ``neural``: the ``tiny`` budget, all four methods, grid 64, seed 0. Fitting on a CPU is
-  deterministic for a fixed thread count; across thread counts the reduction order changes. The
-  measured run-to-run spread (1 vs 2 torch threads, see ``NEURAL_SPREAD``) sets the tolerances at
-  about 3x that spread, and the ranking of methods on the means of CD and ECD must not flip
-  where the baseline gap exceeds the tolerance.
+* ``neural``: the ``tiny`` budget, all four methods, grid 64, seed 0. Measured on this project's
+  2-core machines (28 jobs): 1 vs 2 torch threads gave bit-identical tables (spread 0), so on one
+  kind of CPU the tier is deterministic. Another CPU can change float reduction order, and a fit may
+  then drift like a new seed; the seed-0 vs seed-1 spread bounds that: median relative change CD
+  13%, ECD 8%, NC 3%, F1 26% (p90: CD 42%, ECD 28%). Tolerances sit near that median (CD 15%,
+  ECD 25%, NC 3%, F1 15% + 0.02, EF1 25% + 0.03), and the ranking of methods on the means of CD and
+  ECD must not flip where the baseline gap exceeds twice the tolerance. A broken loss or extractor
+  moves far more than that (see tests/test_regression.py and the closing notes).
 """
 
 from __future__ import annotations
@@ -42,8 +45,9 @@ DEFAULT_DATA_DIR = REPO.parent / "shared" / "data" / "abc"
 KEY = ["shape", "method", "seed"]
 METHODS = ["bof", "sdf", "udf", "sals"]
 
-#: Measured max relative run-to-run spread of the neural tier (filled from repeated runs; see module doc).
-NEURAL_SPREAD: dict[str, float] = {}
+#: Measured spread of the neural tier (module docstring): relative change, median over the 28 jobs.
+NEURAL_SPREAD = {"threads_1_vs_2": {"all": 0.0},
+                 "seed_0_vs_1": {"cd": 0.131, "nc": 0.029, "f1_005": 0.258, "f1_01": 0.256, "ecd": 0.078}}
 
 
 @dataclass(frozen=True)
@@ -87,7 +91,7 @@ TIERS: dict[str, Tier] = {
         },
         check_ranking=True,
         ranking_metrics=("cd", "ecd"),
-        notes="tiny budget; tolerances ~3x the measured 1-vs-2-thread spread",
+        notes="tiny budget; 1-vs-2-thread spread measured 0; tolerances near the median seed-to-seed spread",
     ),
 }
 
