@@ -411,6 +411,19 @@ def _set_threads(threads: int | None) -> None:
             torch.set_num_threads(int(threads))
 
 
+def _new_task(kind: str, spec, progress) -> tuple["JobResult", "_Stages"]:
+    """An empty result and a stage tracker for a job or floor task."""
+    return JobResult(kind=kind, key=spec.key, spec=spec, started=now_iso(), host=socket.gethostname()), _Stages(progress)
+
+
+def _prepare_worker(spec, result: "JobResult", st: "_Stages") -> None:
+    """The 'loading' stage's set-up in whichever process runs the task: plugins, torch threads, versions."""
+    st.enter("loading")
+    import_plugins(spec.plugins)
+    _set_threads(spec.threads)
+    result.versions = package_versions()
+
+
 def run_job(spec: JobSpec, progress: Callable[..., None] | None = None) -> JobResult:
     """Run one job end to end; never raises (a failure is a failed JobResult with its error).
 
@@ -422,13 +435,9 @@ def run_job(spec: JobSpec, progress: Callable[..., None] | None = None) -> JobRe
     with ``loss=...`` during fitting.
     """
     t_total = time.perf_counter()
-    result = JobResult(kind="job", key=spec.key, spec=spec, started=now_iso(), host=socket.gethostname())
-    st = _Stages(progress)
+    result, st = _new_task("job", spec, progress)
     try:
-        st.enter("loading")
-        import_plugins(spec.plugins)
-        _set_threads(spec.threads)
-        result.versions = package_versions()
+        _prepare_worker(spec, result, st)
         from methods.base import get_method
 
         method = get_method(spec.method, **spec.params)
@@ -625,13 +634,9 @@ def _load_weights(path: Path, method, spec: JobSpec, device):
 def run_floor(spec: FloorSpec, progress: Callable[..., None] | None = None) -> JobResult:
     """The floor of one shape (``benchmark.metrics.floor``) and its GT mesh as PLY bytes; never raises."""
     t_total = time.perf_counter()
-    result = JobResult(kind="floor", key=spec.key, spec=spec, started=now_iso(), host=socket.gethostname())
-    st = _Stages(progress)
+    result, st = _new_task("floor", spec, progress)
     try:
-        st.enter("loading")
-        import_plugins(spec.plugins)
-        _set_threads(spec.threads)
-        result.versions = package_versions()
+        _prepare_worker(spec, result, st)
         t = time.perf_counter()
         shape = load_dataset(spec.dataset, spec.dataset_options).load(spec.shape)
         st.timings["load_s"] = time.perf_counter() - t
