@@ -473,6 +473,14 @@ def _triangle_projection(vertices, faces, axis):
     return V2, tri2, area2, elo, ehi, edir, np.sign(area2).astype(np.int64)
 
 
+def _batch_bounds(counts: np.ndarray) -> list[int]:
+    """Split items with ``counts`` work units each into consecutive batches of ~RASTER_BATCH units:
+    returns the batch boundaries (indices into ``counts``), first 0 or more, last ``len(counts)``."""
+    cum = np.cumsum(counts)
+    total = int(cum[-1]) if len(cum) else 0
+    return list(np.searchsorted(cum, np.arange(0, total, RASTER_BATCH), side="right")) + [len(counts)]
+
+
 def closed_chain_winding_number(vertices, faces, points, cells: int | None = None):
     """Exact integer winding number of a *closed chain* at arbitrary points, by crossing counts.
 
@@ -510,8 +518,7 @@ def closed_chain_winding_number(vertices, faces, points, cells: int | None = Non
     edge_n = np.stack([np.stack([-(b - a)[:, 1], (b - a)[:, 0]], axis=1) for a, b in ((t0, t1), (t1, t2), (t2, t0))],
                       axis=1) * orient[:, None, None]  # (m, 3, 2)
     edge_c = -np.einsum("mij,mij->mi", edge_n, np.stack([t0, t1, t2], axis=1))
-    bounds = np.searchsorted(np.cumsum(count[live]), np.arange(0, count[live].sum(), RASTER_BATCH), side="right")
-    bounds = list(bounds) + [len(live)]
+    bounds = _batch_bounds(count[live])
     for a, b in zip(bounds[:-1], bounds[1:]):
         if b <= a:
             continue
@@ -579,9 +586,7 @@ def grid_line_hits(vertices: np.ndarray, faces: np.ndarray, N: int, axis: int, r
         empty = np.zeros(0, dtype=np.int64)
         return empty, empty, np.zeros(0), empty, empty
     normal_sign = orient * (-1 if axis == 1 else 1)  # n_axis = area2 for x, z; -area2 for y
-    cum = np.cumsum(count[live])
-    starts = np.searchsorted(cum, np.arange(0, cum[-1], RASTER_BATCH), side="right")
-    bounds = list(starts) + [len(live)]
+    bounds = _batch_bounds(count[live])
     for lo_i, hi_i in zip(bounds[:-1], bounds[1:]):
         if hi_i <= lo_i:
             continue

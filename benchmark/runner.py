@@ -702,6 +702,14 @@ def parse_method_params(items: Sequence[str] | None) -> dict[str, dict[str, Any]
 PROTOCOL_KEYS = ("dataset", "data_dir", "mode", "budget", "grid", "eval_points", "metric_preset", "method_params")
 
 
+def _existing_path(flag: str, value, kind: str) -> str:
+    """The absolute path of an existing directory/file given to ``flag``; ConfigError naming it otherwise."""
+    path = Path(value).expanduser()
+    if not (path.is_dir() if kind == "directory" else path.is_file()):
+        raise ConfigError(f"{flag} {value}: {'not a ' + kind if path.exists() else 'does not exist'}")
+    return str(path.resolve())
+
+
 def resolve_config(args: argparse.Namespace) -> dict:
     """Validate the parsed options and return the resolved configuration (no work done yet).
 
@@ -823,16 +831,10 @@ def resolve_config(args: argparse.Namespace) -> dict:
     options: dict[str, Any] = {}
     data_dir = pick("data_dir", None)
     if data_dir is not None:
-        path = Path(data_dir).expanduser()
-        if not path.is_dir():
-            raise ConfigError(f"--data-dir {data_dir}: {'not a directory' if path.exists() else 'does not exist'}")
-        options["data_dir"] = str(path.resolve())
+        options["data_dir"] = _existing_path("--data-dir", data_dir, "directory")
     list_file = pick("list", None)
     if list_file is not None:
-        path = Path(list_file).expanduser()
-        if not path.is_file():
-            raise ConfigError(f"--list {list_file}: {'not a file' if path.exists() else 'does not exist'}")
-        options["list_file"] = str(path.resolve())
+        options["list_file"] = _existing_path("--list", list_file, "file")
     limit = pick("limit", None)
     if limit is not None and int(limit) < 1:
         raise ConfigError(f"--limit must be >= 1, got {limit}")
