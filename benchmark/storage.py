@@ -1,0 +1,94 @@
+"""Files on disk: the cache root, atomic writes and checksummed cache entries (one owner each).
+
+* :func:`cache_root` -- where every cache lives: an explicit directory, else ``$SALSBENCH_CACHE``,
+  else ``~/.cache/salsbench``. Kinds of entries go in sub-folders (``fields/``, ``weights/``,
+  ``meshes/``), always below this root.
+* :func:`atomic_write` -- write bytes to a temporary file in the same folder, then ``os.replace``:
+  a reader sees the old file or the new one, never half of one (a killed writer leaves no entry).
+* :func:`write_checked` / :func:`read_checked` -- a cache entry is ``MAGIC + sha256(payload) +
+  payload``. Reading checks the digest: a flipped byte, a truncated file or a file that is not an
+  entry raises :class:`CorruptEntry`, so the caller recomputes (and counts it) instead of using
+  damaged weights, meshes or fields.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+from pathlib import Path
+
+#: First bytes of a checksummed cache entry (format version 1).
+MAGIC = b"SALSBENCH-ENTRY-1\n"
+_DIGEST = 32
+
+
+class CorruptEntry(ValueError):
+    """A cache entry whose bytes do not match its checksum (or that is not an entry at all)."""
+
+
+def cache_root(explicit: str | os.PathLike | None = None) -> Path:
+    """The cache root: ``explicit``, else ``$SALSBENCH_CACHE``, else ``~/.cache/salsbench``."""
+    if explicit:
+        return Path(explicit).expanduser()
+    env = os.environ.get("SALSBENCH_CACHE")
+    return Path(env).expanduser() if env else Path.home() / ".cache" / "salsbench"
+
+
+def atomic_write(path: str | os.PathLike, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically (temporary file in the same folder + ``os.replace``)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def write_checked(path: str | os.PathLike, payload: bytes) -> Path:
+    """Write a checksummed cache entry atomically: ``MAGIC + sha256(payload) + payload``."""
+    return atomic_write(path, MAGIC + hashlib.sha256(payload).digest() + payload)
+
+
+def read_checked(path: str | os.PathLike) -> bytes | None:
+    """The payload of a checksummed entry; None when the file does not exist.
+
+    Raises :class:`CorruptEntry` (one line naming the file) when the digest does not match.
+    """
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        return None
+    head = len(MAGIC) + _DIGEST
+    if len(data) < head or not data.startswith(MAGIC):
+        raise CorruptEntry(f"{path}: not a salsbench cache entry (no header)")
+    payload = data[head:]
+    if hashlib.sha256(payload).digest() != data[len(MAGIC):head]:
+        raise CorruptEntry(f"{path}: checksum mismatch (the file was damaged after it was written)")
+    return payload
+
+
+class CacheStats:
+    """What the caches did for one job: kinds served from cache, and corrupt entries recomputed.
+
+    ``hits``: cache kinds read successfully ('fields', 'weights', 'mesh'), in order of use.
+    ``rejected``: one line per entry whose checksum failed (it was recomputed and overwritten).
+    """
+
+    def __init__(self) -> None:
+        self.hits: list[str] = []
+        self.rejected: list[str] = []
+
+    def hit(self, kind: str) -> None:
+        if kind not in self.hits:
+            self.hits.append(kind)
+
+    def reject(self, error: Exception) -> None:
+        self.rejected.append(str(error))
