@@ -50,6 +50,8 @@ from scipy.spatial import cKDTree
 
 __all__ = [
     "MetricPreset",
+    "HeadlineMetric",
+    "f1_column",
     "PRESETS",
     "REPORT_SCALE",
     "sample_surface",
@@ -70,6 +72,23 @@ __all__ = [
 # --------------------------------------------------------------------------------------------
 # Presets
 # --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class HeadlineMetric:
+    """A reported metric: result column, display name, table multiplier, better direction."""
+
+    column: str
+    name: str
+    scale: float
+    lower_is_better: bool
+
+
+def f1_column(tau: float) -> str:
+    """Result column of the F1 score at threshold ``tau``: 0.005 -> 'f1_005', 0.01 -> 'f1_01'
+    (the digits after '0.'; other values: '.' -> '_'). The one naming rule of F1 columns."""
+    text = f"{tau:.10f}".rstrip("0").rstrip(".")
+    return "f1_" + (text[2:] if text.startswith("0.") else text.replace(".", "_"))
 
 
 @dataclass(frozen=True)
@@ -124,7 +143,7 @@ class MetricPreset:
     @property
     def f1_keys(self) -> tuple[str, ...]:
         """Result keys of the F1 scores: 'f1_005' for tau = 0.005, 'f1_01' for 0.01, ..."""
-        return tuple(f"f1_{_tau_suffix(t)}" for t in self.f1_thresholds)
+        return tuple(f1_column(t) for t in self.f1_thresholds)
 
     @property
     def report_scale(self) -> dict[str, float]:
@@ -136,18 +155,42 @@ class MetricPreset:
             "ecd": self.ecd_scale,
         }
 
-    def describe(self) -> str:
-        """One line stating the protocol, for table captions."""
-        cd = "1/2(mean d(g->P) + mean d(p->G))" if self.chamfer == "l1_half_mean" else "mean d(g->P)^2 + mean d(p->G)^2"
-        unit = "D" if self.edge_units == "gt_diagonal" else ""
-        frame = "GT canonical frame" if self.frame == "canonical" else "GT bbox centred, diagonal 1"
-        fall = "ECD NaN+flag" if self.empty_edge_fallback == 0 else f"{self.empty_edge_fallback} origin points"
-        f1s = ", ".join(f"F1@{t:g}" for t in self.f1_thresholds)
-        return (
-            f"preset {self.name}: {frame}, n={self.n_points:,}; CD={cd} x{self.cd_scale:g}; NC |dot|; {f1s}; "
-            f"edge points |p-q|<={self.edge_radius:g}{unit} & |n.n|<{self.edge_dot_threshold:g}; "
-            f"ECD ({self.ecd}) x{self.ecd_scale:g}; EF1@{self.ef1_threshold:g}{unit}; no pred edges: {fall}"
-        )
+    def headline_metrics(self) -> list["HeadlineMetric"]:
+        """The reported metrics in paper order (CD, NC, F1@tau..., ECD, EF1) with their table
+        multipliers and better directions: what every table and plot shows."""
+        out = [HeadlineMetric("cd", "CD", self.cd_scale, True), HeadlineMetric("nc", "NC", 1.0, False)]
+        out += [HeadlineMetric(k, f"F1@{t:g}", 1.0, False) for t, k in zip(self.f1_thresholds, self.f1_keys)]
+        out += [HeadlineMetric("ecd", "ECD", self.ecd_scale, True), HeadlineMetric("ef1", "EF1", 1.0, False)]
+        return out
+
+    def describe_items(self, n_points: int | None = None) -> list[tuple[str, str]]:
+        """(label, value) pairs stating the protocol, for table captions and the HTML report.
+        ``n_points`` overrides the preset's sample count (a run's ``--eval-points``)."""
+        unit = " D" if self.edge_units == "gt_diagonal" else ""
+        frame = {"canonical": "GT canonical frame (bbox centred, largest side 1.99)",
+                 "diag1": "GT bbox centred, diagonal 1 (NDC)"}[self.frame]
+        chamfer = {"l1_half_mean": "½(mean d(g→P) + mean d(p→G)), unsquared",
+                   "squared_sum": "mean d(g→P)² + mean d(p→G)²"}
+        items = [
+            ("metric preset", self.name),
+            ("frame", frame),
+            ("points per mesh", f"{int(self.n_points if n_points is None else n_points):,}"),
+            ("CD form", f"{chamfer[self.chamfer]} ×{self.cd_scale:g}"),
+            ("NC", "|n·n| (orientation-agnostic)"),
+            ("F1 thresholds", ", ".join(f"{t:g}" for t in self.f1_thresholds)),
+            ("sharp-edge points", f"|p−q| ≤ {self.edge_radius:g}{unit}, |n·n| < {self.edge_dot_threshold:g}"),
+            ("ECD form", f"{chamfer[self.ecd]} ×{self.ecd_scale:g}"),
+            ("EF1 threshold", f"{self.ef1_threshold:g}{unit}"),
+            ("no predicted edge points", "ECD NaN (counted), EF1 = 0" if not self.empty_edge_fallback
+             else f"{self.empty_edge_fallback} origin points scored"),
+        ]
+        if unit:
+            items.append(("D", "GT bounding-box diagonal"))
+        return items
+
+    def describe(self, n_points: int | None = None) -> str:
+        """One line stating the protocol (the items of :meth:`describe_items`)."""
+        return "; ".join(f"{k}: {v}" for k, v in self.describe_items(n_points))
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -188,11 +231,6 @@ PRESETS: dict[str, MetricPreset] = {
 
 #: Table multipliers per preset and result key (raw values are multiplied by these in tables).
 REPORT_SCALE: dict[str, dict[str, float]] = {name: p.report_scale for name, p in PRESETS.items()}
-
-
-def _tau_suffix(tau: float) -> str:
-    text = f"{tau:.10f}".rstrip("0").rstrip(".")
-    return text[2:] if text.startswith("0.") else text.replace(".", "_")
 
 
 def _get_preset(preset: str | MetricPreset) -> MetricPreset:
