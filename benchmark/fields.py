@@ -56,7 +56,7 @@ from pathlib import Path
 import igl
 import numpy as np
 
-from benchmark.grid import EdgeField, axis_coords, edge_offsets, edge_shape, num_edges, spacing
+from benchmark.grid import EdgeField, axis_coords, ijk_axis_to_edge_index, num_edges, spacing
 
 #: Version of the field definitions; part of every cache key (bump when a convention changes).
 FIELDS_VERSION = "fields-v1"
@@ -310,7 +310,6 @@ class ExactFields:
         hit = np.zeros(E, dtype=bool)
         s = np.zeros(E, dtype=np.float32)
         normal = np.zeros((E, 3), dtype=np.float32)
-        offsets = edge_offsets(N)
         Vw, Fw = self._welded()
         for axis in range(3):
             j, k, x, face, _ = grid_line_hits(Vw, Fw, N, axis, rule="closed")
@@ -323,11 +322,10 @@ class ExactFields:
             cand_i = np.tile(np.arange(len(x)), 3)
             ok = (cand_e >= 0) & (cand_e <= N - 2) & (cand_tau >= -TAU_TOL) & (cand_tau <= 1 + TAU_TOL)
             e_line, tau, i = cand_e[ok], np.clip(cand_tau[ok], 0.0, 1.0), cand_i[ok]
-            # flat edge id: the edge array along `axis` has shape edge_shape(N, axis), C order
-            ijk = [None, None, None]
+            ijk = np.empty((len(i), 3), dtype=np.int64)  # lower endpoint of each candidate edge
             others = [a for a in range(3) if a != axis]
-            ijk[axis], ijk[others[0]], ijk[others[1]] = e_line, j[i], k[i]
-            eid = offsets[axis] + np.ravel_multi_index(tuple(ijk), edge_shape(N, axis))
+            ijk[:, axis], ijk[:, others[0]], ijk[:, others[1]] = e_line, j[i], k[i]
+            eid = ijk_axis_to_edge_index(N, ijk, axis)
             f = face[i]
             # smallest tau per edge; ties within TAU_TOL go to the smallest face index
             order = np.lexsort((tau, eid))

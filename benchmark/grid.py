@@ -12,7 +12,14 @@ Conventions shared by the exact fields, the network queries and every extractor:
   whose index along ``a`` is ``< N - 1``; they form an array of shape :func:`edge_shape` ``(N, a)``
   (``N - 1`` along ``a``, ``N`` elsewhere). The *flat edge order* concatenates the three axes,
   each in C order of its shape: 3 (N - 1) N^2 edges in all. An edge is stored lower endpoint
-  first: ``u`` = start point, ``v = u + h e_a``.
+  first: ``u`` = start point, ``v = u + h e_a``. Written out, with ``(n0, n1, n2) = edge_shape(N, a)``
+  and :func:`edge_offsets` ``off = (0, E_0, E_0 + E_1, E)``::
+
+      edge id = off[a] + (i n1 + j) n2 + k
+
+  This module is the one owner of that numbering: :func:`ijk_axis_to_edge_index` encodes,
+  :func:`edge_index_to_ijk_axis` decodes, :func:`edge_endpoint_values` lays per-point values out
+  per edge; every other module calls them.
 * Cells: ``(N - 1)^3``, cell ``(i, j, k)`` spans ``[i, i+1] x [j, j+1] x [k, k+1]`` in index units.
 """
 
@@ -48,11 +55,6 @@ def index_to_world(ijk: np.ndarray, N: int) -> np.ndarray:
     return LOWER + np.asarray(ijk, dtype=np.float64) * spacing(N)
 
 
-def world_to_index(xyz: np.ndarray, N: int) -> np.ndarray:
-    """Map canonical coordinates (..., 3) to fractional grid indices."""
-    return (np.asarray(xyz, dtype=np.float64) - LOWER) / spacing(N)
-
-
 def edge_shape(N: int, axis: int) -> tuple[int, int, int]:
     """Shape of the array of edges along ``axis``: N - 1 along it, N along the other two."""
     shape = [N, N, N]
@@ -75,15 +77,6 @@ def num_edges(N: int) -> int:
     return 3 * (N - 1) * N * N
 
 
-def edge_start_indices(N: int) -> np.ndarray:
-    """Integer grid index (i, j, k) of the lower endpoint of every edge, flat order, (E, 3) int32."""
-    out = []
-    for a in range(3):
-        idx = np.indices(edge_shape(N, a), dtype=np.int32).reshape(3, -1).T
-        out.append(idx)
-    return np.concatenate(out, axis=0)
-
-
 def edge_axes(N: int) -> np.ndarray:
     """Axis (0, 1, 2) of every edge in flat order, (E,) int8."""
     return np.repeat(np.arange(3, dtype=np.int8), edge_counts(N))
@@ -103,40 +96,85 @@ def edge_endpoints(N: int, edge_ids: np.ndarray | None = None, dtype=np.float32)
     return u, v
 
 
-def edge_index_to_ijk_axis(N: int, edge_ids: np.ndarray | None = None):
-    """Decode flat edge indices into (lower-endpoint grid index (E, 3) int64, axis (E,) int64)."""
-    offsets = edge_offsets(N)
+def edge_index_to_ijk_axis(N: int, edge_ids: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Decode flat edge ids (module docstring) into lower-endpoint grid indices and axes.
+
+    Parameters
+    ----------
+    N : grid resolution (points per axis).
+    edge_ids : (K,) integer flat edge ids in ``[0, num_edges(N))``; default: every edge, in order.
+
+    Returns
+    -------
+    ijk : (K, 3) int64 grid index of each edge's lower endpoint ``u``.
+    axis : (K,) int64 axis (0, 1, 2) the edge runs along.
+    """
+    off = edge_offsets(N)
     if edge_ids is None:
-        edge_ids = np.arange(offsets[-1], dtype=np.int64)
+        edge_ids = np.arange(off[-1], dtype=np.int64)
     edge_ids = np.asarray(edge_ids, dtype=np.int64)
-    axis = np.searchsorted(offsets, edge_ids, side="right") - 1
-    local = edge_ids - offsets[axis]
+    if edge_ids.size and (edge_ids.min() < 0 or edge_ids.max() >= off[-1]):
+        raise ValueError(f"edge ids must lie in [0, {off[-1]}) for N={N}, "
+                         f"got [{edge_ids.min()}, {edge_ids.max()}]")
+    axis = np.searchsorted(off, edge_ids, side="right") - 1
+    local = edge_ids - off[axis]
+    # the edge array along `axis` has shape (n0, n1, n2): N - 1 along `axis`, N elsewhere
+    n1 = N - (axis == 1)
+    n2 = N - (axis == 2)
     ijk = np.empty((len(edge_ids), 3), dtype=np.int64)
-    for a in range(3):  # three vectorised passes, one per axis block
-        m = axis == a
-        if np.any(m):
-            ijk[m] = np.stack(np.unravel_index(local[m], edge_shape(N, a)), axis=-1)
+    ijk[:, 2] = local % n2
+    rest = local // n2
+    ijk[:, 1] = rest % n1
+    ijk[:, 0] = rest // n1
     return ijk, axis
 
 
-def ijk_axis_to_edge_index(N: int, ijk: np.ndarray, axis: np.ndarray) -> np.ndarray:
-    """Flat edge index of the edge starting at grid index ``ijk`` (E, 3) along ``axis`` (E,)."""
+def ijk_axis_to_edge_index(N: int, ijk: np.ndarray, axis: np.ndarray | int) -> np.ndarray:
+    """Flat edge ids (module docstring) of the edges starting at grid index ``ijk`` along ``axis``.
+
+    Parameters
+    ----------
+    N : grid resolution (points per axis).
+    ijk : (K, 3) integer grid index of each edge's lower endpoint; the index along ``axis`` must be
+        ``<= N - 2`` and the others ``<= N - 1`` (not checked: callers build valid edges).
+    axis : (K,) integer axes, or one axis for all edges.
+
+    Returns
+    -------
+    (K,) int64 flat edge ids.
+    """
     ijk = np.asarray(ijk, dtype=np.int64)
     axis = np.asarray(axis, dtype=np.int64)
-    offsets = edge_offsets(N)
-    out = np.empty(len(ijk), dtype=np.int64)
-    for a in range(3):
-        m = axis == a
-        if np.any(m):
-            out[m] = offsets[a] + np.ravel_multi_index(tuple(ijk[m].T), edge_shape(N, a))
-    return out
+    n1 = N - (axis == 1)
+    n2 = N - (axis == 2)
+    return edge_offsets(N)[axis] + (ijk[:, 0] * n1 + ijk[:, 1]) * n2 + ijk[:, 2]
 
 
-def split_by_axis(values: np.ndarray, N: int) -> list[np.ndarray]:
-    """Split a flat per-edge array (E, ...) into three arrays shaped ``edge_shape(N, a) + (...)``."""
-    off = edge_offsets(N)
-    tail = values.shape[1:]
-    return [values[off[a]:off[a + 1]].reshape(edge_shape(N, a) + tail) for a in range(3)]
+def edge_endpoint_values(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A per-point grid array read at both endpoints of every edge, in flat edge order.
+
+    Parameters
+    ----------
+    values : (N, N, N, ...) array on the grid points ('ij' order).
+
+    Returns
+    -------
+    lower, upper : (E, ...) arrays, E = num_edges(N): ``values`` at ``u`` and at ``v = u + h e_axis``
+        (contiguous slices per axis, no index arithmetic).
+    """
+    values = np.asarray(values)
+    N = values.shape[0]
+    if values.ndim < 3 or values.shape[1:3] != (N, N):
+        raise ValueError(f"values must have shape (N, N, N, ...), got {values.shape}")
+    tail = values.shape[3:]
+    lower, upper = [], []
+    for a in range(3):  # the three axis blocks of the flat order
+        lo = [slice(None)] * 3
+        hi = [slice(None)] * 3
+        lo[a], hi[a] = slice(0, N - 1), slice(1, N)
+        lower.append(values[tuple(lo)].reshape((-1,) + tail))
+        upper.append(values[tuple(hi)].reshape((-1,) + tail))
+    return np.concatenate(lower), np.concatenate(upper)
 
 
 @dataclass

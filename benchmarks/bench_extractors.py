@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 from skimage.measure import marching_cubes
 
-from benchmark.grid import edge_endpoints, grid_points, spacing
+from benchmark.grid import edge_endpoint_values, edge_endpoints, grid_points, spacing
 from methods.edc import edc_extract
 from methods.meshudf import meshudf_extract
 
@@ -59,16 +59,8 @@ def fields(N: int):
     udf = np.abs(sdf)
     grad = np.sign(sdf)[..., None] * sdf_gradient(P)
     # intersected edges: the SDF changes sign between the endpoints (one crossing per edge)
-    ids = []
-    offset = 0
-    for a in range(3):
-        lo = [slice(None)] * 3
-        hi = [slice(None)] * 3
-        lo[a], hi[a] = slice(0, N - 1), slice(1, N)
-        change = (sdf[tuple(lo)] < 0) != (sdf[tuple(hi)] < 0)
-        ids.append(offset + np.flatnonzero(change))
-        offset += change.size
-    ids = np.concatenate(ids)
+    inside_u, inside_v = edge_endpoint_values(sdf < 0)
+    ids = np.flatnonzero(inside_u != inside_v)
     u, v = edge_endpoints(N, ids, dtype=np.float64)
     t_lo, t_hi = np.zeros(len(ids)), np.ones(len(ids))
     su = heat_sink_sdf(u) < 0

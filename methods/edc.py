@@ -37,7 +37,7 @@ import time
 
 import numpy as np
 
-from benchmark.grid import EdgeField, LOWER, edge_offsets, num_edges, spacing
+from benchmark.grid import EdgeField, LOWER, edge_index_to_ijk_axis, num_edges, spacing
 
 __all__ = [
     "edc_extract",
@@ -63,26 +63,10 @@ def intersected_edges(o_hat: np.ndarray, threshold: float = DEFAULT_HIT_THRESHOL
     return np.flatnonzero(np.asarray(o_hat) > threshold)
 
 
-def _decode_edges(N: int, edge_ids: np.ndarray):
-    """Flat edge ids -> (start index (K, 3) int64, axis (K,) int64), without per-axis masks."""
-    off = edge_offsets(N)
-    axis = np.searchsorted(off, edge_ids, side="right") - 1
-    local = edge_ids - off[axis]
-    # edge_shape(N, a) is N along every axis except a, where it is N - 1
-    n1 = N - (axis == 1)
-    n2 = N - (axis == 2)
-    ijk = np.empty((len(edge_ids), 3), dtype=np.int64)
-    ijk[:, 2] = local % n2
-    rest = local // n2
-    ijk[:, 1] = rest % n1
-    ijk[:, 0] = rest // n1
-    return ijk, axis
-
-
 def edge_points(N: int, edge_ids: np.ndarray, s: np.ndarray) -> np.ndarray:
     """Hit points ``p = s u + (1 - s) v = u + (1 - s) h e_axis`` of edges (K, 3) float64, canonical frame."""
     edge_ids, s, _ = _check_inputs(N, edge_ids, s, None)
-    ijk, axis = _decode_edges(N, edge_ids)
+    ijk, axis = edge_index_to_ijk_axis(N, edge_ids)
     return _points_from_decoded(N, ijk, axis, s)
 
 
@@ -268,7 +252,7 @@ class _Decoded:
 
     def __init__(self, N, edge_ids, s):
         self.N = N
-        self.ijk, self.axis = _decode_edges(N, edge_ids)
+        self.ijk, self.axis = edge_index_to_ijk_axis(N, edge_ids)
         self.points = _points_from_decoded(N, self.ijk, self.axis, s)
 
 

@@ -40,7 +40,7 @@ from typing import Callable
 
 import numpy as np
 
-from benchmark.grid import LOWER, edge_offsets, num_edges, spacing
+from benchmark.grid import LOWER, ijk_axis_to_edge_index, num_edges, spacing
 
 __all__ = ["meshudf_extract", "candidate_cubes", "mc_case_table", "CUBE_CORNERS", "CUBE_EDGES"]
 
@@ -205,7 +205,7 @@ def meshudf_extract(udf: np.ndarray, grad: np.ndarray, *, udf_at: Callable[[np.n
     axis = _EDGE_AXIS[ee]
     start = ijk[cc] + CUBE_CORNERS[c0]  # grid index of the edge's lower endpoint
     # merge key: the grid edge, or the grid point when the crossing is at an endpoint
-    key = _edge_ids(N, start, axis)
+    key = ijk_axis_to_edge_index(N, start, axis)
     at0, at1 = t <= 0.0, t >= 1.0
     if at0.any() or at1.any():
         point = (start[:, 0] * N + start[:, 1]) * N + start[:, 2]
@@ -252,10 +252,3 @@ def meshudf_extract(udf: np.ndarray, grad: np.ndarray, *, udf_at: Callable[[np.n
     timings["filter"] = time.perf_counter() - t3
     return verts, faces, timings
 
-
-def _edge_ids(N, start, axis):
-    """Flat edge ids (benchmark.grid order) of the edges starting at grid index ``start`` along ``axis``."""
-    off = edge_offsets(N)
-    n1 = N - (axis == 1)
-    n2 = N - (axis == 2)
-    return off[axis] + (start[:, 0] * n1 + start[:, 1]) * n2 + start[:, 2]

@@ -85,14 +85,7 @@ def test_edge_points_formula():
     assert np.array_equal(intersected_edges(np.array([0.05, 0.2, 0.1, 0.9])), [1, 3])
 
 
-def test_edge_decoding_matches_the_grid_module():
-    from benchmark.grid import edge_index_to_ijk_axis
-    from methods.edc import _decode_edges
-
-    ids = np.random.default_rng(2).choice(num_edges(N), 500, replace=False)
-    ijk, axis = _decode_edges(N, ids)
-    ref_ijk, ref_axis = edge_index_to_ijk_axis(N, ids)
-    assert np.array_equal(ijk, ref_ijk) and np.array_equal(axis, ref_axis)
+def test_edge_points_match_the_grid_hit_points():
     field, _, _ = planes_edge_field(N, [((0.2, 0.3, 1.0), 0.1, None)])
     hit_ids, p_ref = field.hit_points()
     assert np.allclose(edge_points(N, hit_ids, field.s[hit_ids]), p_ref)
