@@ -49,17 +49,14 @@ Grid conventions (benchmark.grid)
 
 from __future__ import annotations
 
-import os
-import tempfile
-from pathlib import Path
-
 import igl
 import numpy as np
 
 from benchmark.grid import EdgeField, axis_coords, ijk_axis_to_edge_index, num_edges, spacing
 from benchmark.raster import closed_chain_winding_number, grid_line_hits
 
-#: Version of the field definitions; part of every cache key (bump when a convention changes).
+#: Version of the field definitions; part of every cache key of :mod:`benchmark.field_cache`
+#: (bump when a convention changes).
 FIELDS_VERSION = "fields-v1"
 
 #: Points per libigl call (keeps peak memory < 1 GB, ENVIRONMENT.md).
@@ -69,7 +66,6 @@ CHUNK = 1 << 20
 TAU_TOL = 1e-9
 
 GRID_KINDS = ("occupancy", "sdf", "udf")
-CACHE_KINDS = ("occupancy", "sdf", "udf_grad", "edges")
 
 
 def default_band(N: int) -> float:
@@ -425,99 +421,3 @@ def _grid_slabs(N: int):
     for i0 in range(0, N, step):
         i1 = min(N, i0 + step)
         yield i0, i1, np.stack(np.meshgrid(c[i0:i1], c, c, indexing="ij"), axis=-1).reshape(-1, 3)
-
-
-# ---------------------------------------------------------------------- disk cache
-def cache_dir_default() -> Path:
-    """``$SALSBENCH_CACHE`` if set, else ``~/.cache/salsbench/fields``."""
-    env = os.environ.get("SALSBENCH_CACHE")
-    return Path(env) if env else Path.home() / ".cache" / "salsbench" / "fields"
-
-
-def cache_key(mesh_hash: str, N: int, kind: str, band: float | None = None) -> str:
-    """File stem of a cached field: mesh hash, N, kind, band (distance kinds) and FIELDS_VERSION."""
-    parts = [mesh_hash, f"N{N}", kind]
-    if kind in ("sdf", "udf_grad"):
-        parts.append(f"band{(default_band(N) if band is None else float(band)):.6g}")
-    parts.append(FIELDS_VERSION)
-    return "_".join(parts)
-
-
-def _atomic_savez(path: Path, **arrays) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez_compressed(fh, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-def cached_grid_fields(mesh, N: int, kind: str, cache_dir: str | os.PathLike | None = None,
-                       band: float | None = None):
-    """A grid field from the disk cache, computed and stored (atomically, .npz) on a miss.
-
-    ``mesh``: an :class:`ExactFields`, a Shape-like object with ``vertices``/``faces``, or a tuple
-    (vertices, faces). Key: (datasets.io.mesh_hash, N, kind, band, FIELDS_VERSION).
-    kind 'occupancy' -> (N, N, N) bool; 'sdf' -> (N, N, N) float32; 'udf_grad' -> (d, grad) as
-    :meth:`ExactFields.grid_udf_with_grad`; 'edges' -> :class:`benchmark.grid.EdgeField`.
-    A corrupt cache file is recomputed and overwritten.
-    """
-    from datasets.io import mesh_hash
-
-    if kind not in CACHE_KINDS:
-        raise ValueError(f"unknown cached field kind '{kind}' (use one of {', '.join(CACHE_KINDS)})")
-    if isinstance(mesh, ExactFields):
-        fields = mesh
-        V, F = mesh.vertices, mesh.faces
-    elif hasattr(mesh, "vertices") and hasattr(mesh, "faces"):
-        fields, V, F = None, mesh.vertices, mesh.faces
-    else:
-        fields, (V, F) = None, mesh
-    path = Path(cache_dir) if cache_dir is not None else cache_dir_default()
-    path = path / (cache_key(mesh_hash(V, F), N, kind, band) + ".npz")
-    if path.exists():
-        try:
-            with np.load(path) as z:
-                return _unpack(kind, N, z)
-        except Exception:  # truncated/corrupt file from another process: recompute
-            pass
-    if fields is None:
-        fields = ExactFields(V, F)
-    arrays = _compute_pack(fields, N, kind, band)
-    _atomic_savez(path, **arrays)
-    return _unpack(kind, N, arrays)
-
-
-def _compute_pack(fields: ExactFields, N: int, kind: str, band) -> dict:
-    if kind == "occupancy":
-        return {"occupancy": fields.grid_occupancy(N)}
-    if kind == "sdf":
-        return {"sdf": fields.grid_scalar(N, "sdf", band)}
-    if kind == "udf_grad":
-        d, g = fields.grid_udf_with_grad(N, band)
-        return {"udf": d, "grad": g}
-    ef = fields.grid_edges(N)
-    ids = np.flatnonzero(ef.hit)  # stored sparse: hit edges only
-    return {"ids": ids, "s": ef.s[ids], "normal": ef.normal[ids]}
-
-
-def _unpack(kind: str, N: int, z):
-    if kind == "occupancy":
-        return np.asarray(z["occupancy"], dtype=bool)
-    if kind == "sdf":
-        return np.asarray(z["sdf"])
-    if kind == "udf_grad":
-        return np.asarray(z["udf"]), np.asarray(z["grad"])
-    E = num_edges(N)
-    ids = np.asarray(z["ids"], dtype=np.int64)
-    hit = np.zeros(E, dtype=bool)
-    s = np.zeros(E, dtype=np.float32)
-    normal = np.zeros((E, 3), dtype=np.float32)
-    hit[ids] = True
-    s[ids] = z["s"]
-    normal[ids] = z["normal"]
-    return EdgeField(N=N, hit=hit, s=s, normal=normal)

@@ -1,4 +1,4 @@
-"""Exact fields (benchmark/fields.py): analytic values, brute-force grid edges, narrow band, cache."""
+"""Exact fields (benchmark/fields.py): analytic values, brute-force grid edges, narrow band."""
 
 from __future__ import annotations
 
@@ -7,9 +7,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from benchmark import fields as fields_mod
-from benchmark.fields import ExactFields, cached_grid_fields, default_band
-from benchmark.grid import edge_endpoints, grid_points, ijk_axis_to_edge_index, num_edges
+from benchmark.fields import ExactFields, default_band
+from benchmark.grid import edge_endpoints, grid_points, ijk_axis_to_edge_index
 from datasets.io import load_shape
 from tests.conftest import SHARED_DATA, requires_shared
 
@@ -306,42 +305,3 @@ def test_grid_udf_gradient_matches_point_api():
     assert np.all(d.reshape(-1)[~near & (d_ref > band + 1e-6)] == np.float32(band))
     assert np.all(g.reshape(-1, 3)[d_ref > band + 1e-6] == 0)
     np.testing.assert_allclose(np.linalg.norm(g.reshape(-1, 3)[near], axis=1), 1, atol=1e-6)
-
-
-# ---------------------------------------------------------------------- cache
-def test_cache_round_trip_and_key(tmp_path, monkeypatch):
-    V, F = box()
-    N = 12
-    first = cached_grid_fields((V, F), N, "edges", cache_dir=tmp_path)
-    sdf = cached_grid_fields((V, F), N, "sdf", cache_dir=tmp_path)
-    d, g = cached_grid_fields((V, F), N, "udf_grad", cache_dir=tmp_path)
-    occ = cached_grid_fields((V, F), N, "occupancy", cache_dir=tmp_path)
-    assert len(list(tmp_path.glob("*.npz"))) == 4 and not list(tmp_path.glob("*.tmp"))
-
-    def fail(*args, **kwargs):
-        raise AssertionError("recomputed instead of reading the cache")
-
-    monkeypatch.setattr(ExactFields, "grid_edges", fail)
-    monkeypatch.setattr(ExactFields, "grid_scalar", fail)
-    monkeypatch.setattr(ExactFields, "grid_udf_with_grad", fail)
-    monkeypatch.setattr(ExactFields, "grid_occupancy", fail)
-    again = cached_grid_fields((V, F), N, "edges", cache_dir=tmp_path)
-    assert again.hit.shape == (num_edges(N),)
-    np.testing.assert_array_equal(again.hit, first.hit)
-    np.testing.assert_array_equal(again.s, first.s)
-    np.testing.assert_array_equal(again.normal, first.normal)
-    np.testing.assert_array_equal(cached_grid_fields((V, F), N, "sdf", cache_dir=tmp_path), sdf)
-    np.testing.assert_array_equal(cached_grid_fields((V, F), N, "occupancy", cache_dir=tmp_path), occ)
-    d2, g2 = cached_grid_fields((V, F), N, "udf_grad", cache_dir=tmp_path)
-    np.testing.assert_array_equal(d2, d)
-    np.testing.assert_array_equal(g2, g)
-    # a changed mesh is a new key -> recomputed (and here: fails loudly)
-    V2 = V.copy()
-    V2[0, 0] += 1e-3
-    with pytest.raises(AssertionError, match="recomputed"):
-        cached_grid_fields((V2, F), N, "edges", cache_dir=tmp_path)
-    # the environment variable picks the default folder
-    monkeypatch.setenv("SALSBENCH_CACHE", str(tmp_path / "env"))
-    assert fields_mod.cache_dir_default() == tmp_path / "env"
-    with pytest.raises(ValueError, match="unknown cached field kind"):
-        cached_grid_fields((V, F), N, "bof", cache_dir=tmp_path)
