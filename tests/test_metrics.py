@@ -14,6 +14,8 @@ from scipy.integrate import dblquad
 from scipy.spatial.distance import cdist
 
 from benchmark import metrics as M
+from benchmark.metrics.__main__ import main
+from benchmark.surface import sample_surface
 from tests.conftest import REPO
 
 
@@ -47,7 +49,7 @@ def test_presets_are_data_with_the_spec_values():
     assert d.f1_keys == ("f1_005", "f1_01") and d.report_scale["cd"] == 1e3 and d.report_scale["ecd"] == 1e2
     assert (n.n_points, n.frame, n.chamfer, n.f1_thresholds, n.empty_edge_fallback) == (
         100_000, "diag1", "squared_sum", (0.003,), 486)
-    assert n.f1_keys == ("f1_003",) and M.REPORT_SCALE["ndc"]["cd"] == 1e5 and M.REPORT_SCALE["ndc"]["ecd"] == 100
+    assert n.f1_keys == ("f1_003",) and n.report_scale["cd"] == 1e5 and n.report_scale["ecd"] == 100
     with pytest.raises(Exception):
         d.n_points = 5  # frozen
 
@@ -59,7 +61,7 @@ def test_sample_surface_is_area_uniform_seeded_and_on_the_surface():
     # two triangles of areas 1/2 and 3/2 (a 1x1 and a 1x3 right triangle, both in z = 0)
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [5, 0, 0], [6, 0, 0], [5, 3, 0]], dtype=float)
     f = np.array([[0, 1, 2], [3, 4, 5]])
-    p, nrm = M.sample_surface(v, f, 40_000, np.random.default_rng(3))
+    p, nrm = sample_surface(v, f, 40_000, np.random.default_rng(3))
     assert p.shape == nrm.shape == (40_000, 3)
     assert np.allclose(p[:, 2], 0) and np.allclose(nrm, [0, 0, 1])
     on_big = p[:, 0] >= 5
@@ -67,7 +69,7 @@ def test_sample_surface_is_area_uniform_seeded_and_on_the_surface():
     small = p[~on_big]
     assert np.all(small[:, 0] + small[:, 1] <= 1 + 1e-12) and np.all(small >= -1e-12)
     assert abs(small[:, 0].mean() - 1 / 3) < 0.01  # centroid of the triangle
-    again, _ = M.sample_surface(v, f, 40_000, np.random.default_rng(3))
+    again, _ = sample_surface(v, f, 40_000, np.random.default_rng(3))
     assert np.array_equal(p, again)
 
 
@@ -75,10 +77,10 @@ def test_sample_surface_never_picks_zero_area_faces():
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 2, 2]], dtype=float)
     f = np.array([[0, 1, 3], [0, 1, 2], [3, 3, 3]])  # faces 0 and 1 ok, face 2 degenerate
     f[0] = [0, 1, 1]  # make face 0 degenerate too
-    p, _ = M.sample_surface(v, f, 5000, 0)
+    p, _ = sample_surface(v, f, 5000, 0)
     assert np.allclose(p[:, 2], 0)
     with pytest.raises(ValueError, match="no face with positive area"):
-        M.sample_surface(v, f[[0, 2]], 10, 0)
+        sample_surface(v, f[[0, 2]], 10, 0)
 
 
 # ---------------------------------------------------------------- analytic distances
@@ -194,7 +196,7 @@ def test_edge_points_find_the_twelve_edges_of_a_cube():
     r = M.evaluate(v, f, v, f, n_points=200_000, seed=0)
     radius = r["edge_radius"]
     assert radius == pytest.approx(0.004 * 2 * math.sqrt(3))
-    points, normals = M.sample_surface(v, f, 200_000, np.random.default_rng(0))
+    points, normals = sample_surface(v, f, 200_000, np.random.default_rng(0))
     edge = M.sharp_edge_points(points, normals, radius)
     p = points[edge]
     # distance of a surface point to the nearest cube edge: among its two coordinates that are
@@ -216,7 +218,7 @@ def test_edge_points_find_the_twelve_edges_of_a_cube():
 
 def test_no_edge_points_on_a_sphere_and_gt_without_edges_gives_ecd_0_ef1_1():
     v, f = sphere()
-    points, normals = M.sample_surface(v, f, 100_000, 0)
+    points, normals = sample_surface(v, f, 100_000, 0)
     assert not M.sharp_edge_points(points, normals, 0.004 * 1.8 * math.sqrt(3)).any()
     cube_v, cube_f = box(1.6)
     r = M.evaluate(v, f, cube_v, cube_f, n_points=50_000)  # GT sphere, prediction with edges
@@ -381,9 +383,9 @@ def test_cli_json_on_two_tiny_meshes(tmp_path, capsys):
     assert r["cd_gt_to_pred"] == pytest.approx(0.0995, rel=0.05)
     assert r["n_faces"] == 12 and r["watertight"] is True and r["seed"] == 3 and r["normalized"] is True
     # the other options, in-process (same entry point, no interpreter start-up)
-    assert M.main([str(tmp_path / "gt.obj"), str(tmp_path / "pred.ply"), "--points", "20000", "--json", "--no-normalize"]) == 0
+    assert main([str(tmp_path / "gt.obj"), str(tmp_path / "pred.ply"), "--points", "20000", "--json", "--no-normalize"]) == 0
     assert json.loads(capsys.readouterr().out)["cd_gt_to_pred"] == pytest.approx(1.0, rel=0.05)
-    assert M.main([str(tmp_path / "gt.obj"), str(tmp_path / "pred.ply"), "--points", "5000", "--preset", "ndc"]) == 0
+    assert main([str(tmp_path / "gt.obj"), str(tmp_path / "pred.ply"), "--points", "5000", "--preset", "ndc"]) == 0
     table = capsys.readouterr().out
     assert "CD (x100000)" in table and "F1@0.003" in table and "watertight yes" in table
 
@@ -394,7 +396,7 @@ def test_cli_bad_path_exits_2_with_one_line(tmp_path, capsys):
     assert out.returncode == 2 and out.stdout == ""
     assert len(out.stderr.strip().splitlines()) == 1 and "missing.obj" in out.stderr and "not found" in out.stderr
     (tmp_path / "junk.obj").write_text("this is not a mesh\n")
-    assert M.main([str(tmp_path / "junk.obj"), str(tmp_path / "gt.obj")]) == 2
+    assert main([str(tmp_path / "junk.obj"), str(tmp_path / "gt.obj")]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "junk.obj" in err
 
@@ -403,7 +405,7 @@ def test_too_dense_edge_search_is_refused_not_crashed():
     """A prediction 1000x smaller than the GT: all its samples lie within one edge radius, so the
     exact search would test n^2 pairs. It is refused with a one-line reason; ECD/EF1 are NaN."""
     v, f = box(2.0)
-    points, normals = M.sample_surface(v * 1e-3, f, 20_000, 0)
+    points, normals = sample_surface(v * 1e-3, f, 20_000, 0)
     with pytest.raises(M.EdgeSearchTooDense, match="too dense"):
         M.sharp_edge_points(points, normals, 0.01, max_pairs=1e6)
     r = M.evaluate(v, f, v * 1e-3, f, n_points=100_000)  # bound ~1e10 > the 1e9 default

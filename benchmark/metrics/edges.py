@@ -1,0 +1,142 @@
+"""Sharp-edge points of an oriented point set (Neural Dual Contouring's test, SPEC section 7).
+
+A sample ``p`` is an edge point when a sample ``q`` of the same set lies within ``r`` of it
+(``|p - q| <= r``) with ``|n_p . n_q| < 0.2``. :func:`sharp_edge_points` finds them exactly, fast
+enough for 1M samples, and refuses (:class:`EdgeSearchTooDense`) inputs whose search would take
+minutes and tens of GB.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+__all__ = ["sharp_edge_points", "EdgeSearchTooDense", "MAX_EDGE_PAIRS"]
+
+_MAX_CELLS_PER_AXIS = 1 << 20
+_PAIR_BLOCK = 100_000
+_DOT_CHUNK = 4_000_000
+
+#: Default work limit of :func:`sharp_edge_points`: an upper bound on the ordered candidate pairs
+#: (cell counts times 27-neighbourhood counts, ~3x the true count). A 1M-sample CAD mesh: 1e7-1e8.
+MAX_EDGE_PAIRS = 1_000_000_000
+
+
+class EdgeSearchTooDense(ValueError):
+    """The exact edge-point search would enumerate more pairs than allowed (a degenerate input,
+    e.g. a prediction far smaller than the GT so that all its samples lie within a few radii)."""
+
+
+def sharp_edge_points(
+    points: np.ndarray, normals: np.ndarray, radius: float, dot_threshold: float = 0.2, max_pairs: float = MAX_EDGE_PAIRS
+) -> np.ndarray:
+    """Boolean mask of the samples that are sharp-edge points (NDC's test).
+
+    ``p`` is an edge point when some sample ``q`` of the same set has ``|p - q| <= radius`` and
+    ``|n_p . n_q| < dot_threshold`` (``q = p`` never qualifies for unit normals). Exact: every pair
+    within ``radius`` that could qualify is tested; no k-NN truncation.
+
+    Method (chosen for speed at n = 1M: a full radius search finds ~20-40 neighbours per point,
+    i.e. 10-20M pairs and 4-6 s per mesh, of which only the few near edges matter):
+
+    1. *Conservative cell filter.* Hash the points into cubic cells of side ``s >= radius``; any
+       neighbour of ``p`` lies in the 27 cells around p's cell. Per cell c take a representative
+       normal ``m_c`` (its first point's) and ``dev_c = max_{p in c} angle(n_p, m_c)``, angles between
+       *lines* (``arccos |dot|``, a metric on directions). For two cells c0, c1 of a 27-block every
+       pair of their points has ``angle <= dev_c0 + angle(m_c0, m_c1) + dev_c1``; if that bound is below
+       ``arccos(dot_threshold)`` (minus 1e-6 rad for rounding) for all 27 neighbours of c0, no pair
+       touching c0 can qualify: c0 is *safe*. A qualifying pair therefore joins two points of unsafe
+       cells, and the search is restricted to them (typically 5-40% of the samples).
+    2. *Exact search* on the remaining candidates: scipy ``cKDTree.query_pairs(radius)`` (inclusive
+       ``<=``, like sklearn's ``query_radius`` that NDC uses), in slabs of cell layers along the
+       longest axis (each slab plus one layer of halo), so memory stays bounded.
+
+    Raises :class:`EdgeSearchTooDense` (one line) when the cell counts bound the candidate pairs
+    above ``max_pairs`` (samples far denser than the radius: minutes of work and tens of GB).
+    The filter assumes unit (or zero) normals; with other normals it is skipped (plain exact search).
+    """
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    normals = np.ascontiguousarray(normals, dtype=np.float64)
+    n = len(points)
+    flags = np.zeros(n, dtype=bool)
+    if n < 2 or not dot_threshold > 0 or not radius >= 0:
+        return flags
+    lengths = np.linalg.norm(normals, axis=1)
+    unit = bool(np.all((np.abs(lengths - 1.0) < 1e-6) | (lengths == 0)))
+
+    lo = points.min(axis=0)
+    extent = float(np.max(points.max(axis=0) - lo))
+    cell = max(float(radius), extent / _MAX_CELLS_PER_AXIS)
+    if not cell > 0:
+        cell = 1.0
+    ijk = np.floor((points - lo) / cell).astype(np.int64) + 1  # +1: neighbour keys never wrap
+    dims = ijk.max(axis=0) + 2
+    keys = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
+
+    max_angle = np.arccos(dot_threshold) - 1e-6 if unit and dot_threshold <= 1.0 else -1.0
+    candidate, pair_bound = _unsafe_points(keys, normals, dims, max_angle)
+    if pair_bound > max_pairs:
+        raise EdgeSearchTooDense(
+            f"edge-point search too dense: up to {pair_bound:.3g} sample pairs within r = {radius:.4g} "
+            f"(limit {max_pairs:.3g}); the samples span only {extent:.4g}"
+        )
+    cand = np.flatnonzero(candidate)
+    if len(cand) < 2:
+        return flags
+
+    # slabs of cell layers along the axis with the most layers
+    axis = int(np.argmax(np.ptp(ijk[cand], axis=0)))
+    layer = ijk[cand, axis]
+    order = np.lexsort((keys[cand], layer))  # by layer, then cell: spatially coherent trees
+    cand, layer = cand[order], layer[order]
+    block_first_layer = np.unique(np.concatenate([layer[:1], layer[_PAIR_BLOCK::_PAIR_BLOCK]]))
+    block_last_layer = np.concatenate([block_first_layer[1:], [layer[-1] + 1]])  # inclusive halo layer
+    starts = np.searchsorted(layer, block_first_layer, side="left")
+    stops = np.searchsorted(layer, block_last_layer, side="right")
+    for start, stop in zip(starts, stops):  # a loop over chunks (a thread pool gave no speed-up: GIL)
+        members = cand[start:stop]
+        pairs = cKDTree(points[members]).query_pairs(float(radius), output_type="ndarray")
+        for chunk in range(0, len(pairs), _DOT_CHUNK):
+            i, j = members[pairs[chunk : chunk + _DOT_CHUNK]].T
+            hit = np.abs(np.einsum("ij,ij->i", normals[i], normals[j])) < dot_threshold
+            flags[i[hit]] = True
+            flags[j[hit]] = True
+    return flags
+
+
+def _unsafe_points(keys: np.ndarray, normals: np.ndarray, dims: np.ndarray, max_angle: float) -> tuple[np.ndarray, float]:
+    """Step 1 of :func:`sharp_edge_points`: the points whose cell is not provably edge-free, and an
+    upper bound on the ordered pairs among them within the radius (sum over unsafe cells c of
+    ``count(c) * count(unsafe cells among the 27 around c)``). ``max_angle < 0``: no cell is safe."""
+    cell_keys, first, inverse, counts = np.unique(keys, return_index=True, return_inverse=True, return_counts=True)
+    inverse = inverse.reshape(-1)
+    offsets = [(dx * dims[1] + dy) * dims[2] + dz for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)]
+
+    def neighbours(offset):
+        other = cell_keys + offset
+        pos = np.minimum(np.searchsorted(cell_keys, other), len(cell_keys) - 1)
+        hit = np.flatnonzero(cell_keys[pos] == other)
+        return hit, pos[hit]
+
+    if max_angle < 0:
+        unsafe = np.ones(len(cell_keys), dtype=bool)
+    else:
+        rep = normals[first]
+        cos_to_rep = np.abs(np.einsum("ij,ij->i", normals, rep[inverse]))
+        min_cos = np.ones(len(cell_keys))
+        np.minimum.at(min_cos, inverse, cos_to_rep)
+        dev = np.arccos(np.clip(min_cos, 0.0, 1.0))
+        bound = 2.0 * dev  # a cell with itself: dev + 0 + dev
+        for offset in offsets:
+            if offset == 0:
+                continue
+            c0, c1 = neighbours(offset)
+            cos = np.abs(np.einsum("ij,ij->i", rep[c0], rep[c1]))
+            bound[c0] = np.maximum(bound[c0], dev[c0] + np.arccos(np.clip(cos, 0.0, 1.0)) + dev[c1])
+        unsafe = ~(bound < max_angle)
+    unsafe_counts = np.where(unsafe, counts, 0).astype(np.float64)
+    around = np.zeros(len(cell_keys))
+    for offset in offsets:
+        c0, c1 = neighbours(offset)
+        around[c0] += unsafe_counts[c1]
+    return unsafe[inverse], float(np.dot(unsafe_counts, around))

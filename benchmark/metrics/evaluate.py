@@ -1,0 +1,164 @@
+"""``evaluate``: every SPEC section 7 metric of a predicted mesh against a GT mesh, and ``floor``,
+the protocol's noise floor (the GT against an independent resample of itself)."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from benchmark.metrics.distances import edge_metrics, spatial_order, surface_metrics
+from benchmark.metrics.edges import EdgeSearchTooDense, sharp_edge_points
+from benchmark.metrics.presets import MetricPreset, get_preset
+from benchmark.metrics.validity import mesh_validity
+from benchmark.surface import sample_surface
+
+__all__ = ["evaluate", "floor"]
+
+
+def _bbox(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    used = vertices[np.unique(faces)]
+    return used.min(axis=0), used.max(axis=0)
+
+
+def _usable_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Faces with in-range indices and finite vertex coordinates (the rest are dropped)."""
+    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0 or vertices.ndim != 2 or len(vertices) == 0:
+        return np.zeros((0, 3), dtype=np.int64)
+    ok = np.all((faces >= 0) & (faces < len(vertices)), axis=1)
+    finite = np.all(np.isfinite(vertices), axis=1)
+    ok[ok] = np.all(finite[faces[ok]], axis=1)
+    return faces[ok]
+
+
+def evaluate(
+    gt_vertices,
+    gt_faces,
+    pred_vertices,
+    pred_faces,
+    preset: str | MetricPreset = "default",
+    seed: int = 0,
+    n_points: int | None = None,
+) -> dict:
+    """All SPEC section 7 metrics of a prediction against a GT mesh. Never raises on the prediction.
+
+    Inputs are vertex (n, 3) and face (m, 3) arrays in one frame: the GT's canonical frame for the
+    ``default`` preset (they are used as given); for ``ndc`` both are first mapped by
+    ``x -> (x - c) / D`` (c, D = GT bounding-box centre and diagonal). ``n_points`` overrides the
+    preset's sample count. GT samples come from stream 0 and prediction samples from stream 1 of
+    ``SeedSequence(seed)``.
+
+    Returns a flat dict of raw (unscaled) values: ``cd, cd_gt_to_pred, cd_pred_to_gt, nc``,
+    ``f1_*/precision_*/recall_*`` per threshold, ``ecd, ef1, eprecision, erecall, ecd_flag``,
+    ``gt_edge_points, pred_edge_points`` (counts; -1 = not computed), ``edge_search_skipped`` ('' or
+    why the exact edge search was refused, :class:`EdgeSearchTooDense`: ECD/EF1 are then NaN; happens
+    for samples far denser than r, e.g. a prediction 100x smaller than the GT), ``empty_prediction``, ``dropped_faces`` (faces with
+    out-of-range indices or non-finite vertices, excluded from sampling), the validity columns of
+    the prediction as given (:func:`mesh_validity`), and the protocol: ``preset, n_points, seed,
+    gt_diagonal, edge_radius, ef1_threshold`` (absolute, in the frame) and ``seconds`` (per stage).
+    Raises ValueError only for an unusable GT (no faces of positive area, NaN vertices).
+    """
+    t_start = time.perf_counter()
+    preset = get_preset(preset)
+    n = int(preset.n_points if n_points is None else n_points)
+    if n < 1:
+        raise ValueError(f"n_points must be >= 1, got {n}")
+    gt_vertices = np.asarray(gt_vertices, dtype=np.float64)
+    gt_faces = np.asarray(gt_faces, dtype=np.int64)
+    pred_vertices = np.asarray(pred_vertices, dtype=np.float64)
+    pred_faces = np.asarray(pred_faces)
+    pred_faces = pred_faces.astype(np.int64) if pred_faces.size else np.zeros((0, 3), dtype=np.int64)
+    if pred_vertices.size == 0:
+        pred_vertices = np.zeros((0, 3))
+
+    if gt_faces.ndim != 2 or gt_faces.shape[1] != 3 or len(gt_faces) == 0:
+        raise ValueError("GT mesh has no triangles")
+    if len(_usable_faces(gt_vertices, gt_faces)) != len(gt_faces):
+        raise ValueError("GT mesh has out-of-range face indices or non-finite vertices")
+    lo, hi = _bbox(gt_vertices, gt_faces)
+    if preset.frame == "diag1":
+        centre, diag = 0.5 * (lo + hi), float(np.linalg.norm(hi - lo))
+        if not diag > 0:
+            raise ValueError("GT bounding box has zero size")
+        gt_vertices = (gt_vertices - centre) / diag
+        pred_vertices = (pred_vertices - centre) / diag
+        lo, hi = (lo - centre) / diag, (hi - centre) / diag
+    gt_diagonal = float(np.linalg.norm(hi - lo))
+    unit = gt_diagonal if preset.edge_units == "gt_diagonal" else 1.0
+    radius, tau_e = preset.edge_radius * unit, preset.ef1_threshold * unit
+
+    seconds = {}
+    t = time.perf_counter()
+    validity = mesh_validity(pred_vertices, pred_faces)
+    usable = _usable_faces(pred_vertices, pred_faces)
+    seconds["validity"] = time.perf_counter() - t
+
+    gt_stream, pred_stream = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
+    t = time.perf_counter()
+    gt_points, gt_normals = sample_surface(gt_vertices, gt_faces, n, gt_stream)
+    try:
+        pred_points, pred_normals = sample_surface(pred_vertices, usable, n, pred_stream)
+        empty = False
+    except ValueError:  # no faces, or zero total area
+        pred_points = pred_normals = np.zeros((0, 3))
+        empty = True
+    # spatial order: same point sets, much faster KD-tree queries
+    order = spatial_order(gt_points)
+    gt_points, gt_normals = gt_points[order], gt_normals[order]
+    order = spatial_order(pred_points)
+    pred_points, pred_normals = pred_points[order], pred_normals[order]
+    seconds["sample"] = time.perf_counter() - t
+
+    result = {"preset": preset.name, "n_points": n, "seed": int(seed)}
+    t = time.perf_counter()
+    if empty:
+        result.update(cd=float("nan"), cd_gt_to_pred=float("nan"), cd_pred_to_gt=float("nan"), nc=float("nan"))
+        for key in preset.f1_keys:
+            result.update({key: 0.0, f"precision_{key[3:]}": 0.0, f"recall_{key[3:]}": 0.0})
+    else:
+        result.update(surface_metrics(gt_points, gt_normals, pred_points, pred_normals, preset))
+    seconds["distances"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    skipped = ""
+    try:
+        gt_edge = sharp_edge_points(gt_points, gt_normals, radius, preset.edge_dot_threshold)
+    except EdgeSearchTooDense as exc:
+        gt_edge, skipped = None, f"GT {exc}"
+    try:
+        pred_edge = sharp_edge_points(pred_points, pred_normals, radius, preset.edge_dot_threshold)
+    except EdgeSearchTooDense as exc:
+        pred_edge, skipped = None, skipped or f"prediction {exc}"
+    seconds["edge_points"] = time.perf_counter() - t
+    t = time.perf_counter()
+    nan = float("nan")
+    if empty:
+        has_gt_edges = gt_edge is None or bool(gt_edge.any())
+        edges = {"ecd": nan, "ef1": 0.0, "eprecision": 0.0, "erecall": 0.0, "ecd_flag": has_gt_edges}
+    elif skipped:
+        edges = {"ecd": nan, "ef1": nan, "eprecision": nan, "erecall": nan, "ecd_flag": False}
+    else:
+        edges = edge_metrics(gt_points[gt_edge], pred_points[pred_edge], preset, gt_diagonal)
+    seconds["edge_metrics"] = time.perf_counter() - t
+    result.update(edges)
+    result.update(
+        gt_edge_points=-1 if gt_edge is None else int(gt_edge.sum()),
+        pred_edge_points=-1 if pred_edge is None else int(pred_edge.sum()),
+        edge_search_skipped=skipped,
+        empty_prediction=empty,
+        dropped_faces=int(len(pred_faces) - len(usable)),
+    )
+    result.update(validity)
+    result.update(gt_diagonal=gt_diagonal, edge_radius=radius, ef1_threshold=tau_e)
+    seconds["total"] = time.perf_counter() - t_start
+    result["seconds"] = seconds
+    return result
+
+
+def floor(gt_vertices, gt_faces, preset: str | MetricPreset = "default", seed: int = 0, n_points: int | None = None) -> dict:
+    """The protocol's noise floor: the GT scored against an independent resample of itself.
+
+    Identical to ``evaluate(gt, gt, preset, seed)``: the prediction's samples come from a
+    different stream of the seed than the GT's, so the two point sets are independent draws.
+    """
+    return evaluate(gt_vertices, gt_faces, gt_vertices, gt_faces, preset=preset, seed=seed, n_points=n_points)

@@ -1,0 +1,50 @@
+"""Mesh validity columns (SPEC section 7): vertex and face counts, boundary and non-manifold
+edges, edge-connected components, watertightness, counted on the faces as given."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+__all__ = ["mesh_validity"]
+
+
+def mesh_validity(vertices: np.ndarray, faces: np.ndarray) -> dict:
+    """Topology counts of a triangle mesh, on its faces *as given* (no vertex merging).
+
+    An undirected edge is a pair of vertex indices used by a face side (duplicated vertex positions
+    with different indices are different vertices, so a triangle soup has only boundary edges).
+    ``boundary_edges``: edges used by exactly one face side; ``nonmanifold_edges``: used by more
+    than two; ``components``: connected components of faces, two faces being connected when they
+    share an edge (sharing only a vertex does not connect); ``watertight``: at least one face and
+    every edge used by exactly two face sides.
+    """
+    vertices = np.asarray(vertices).reshape(-1, 3)
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    m = len(faces)
+    out = {"n_vertices": int(len(vertices)), "n_faces": int(m)}
+    if m == 0:
+        out.update(boundary_edges=0, nonmanifold_edges=0, components=0, watertight=False)
+        return out
+    sides = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)  # face f owns rows 3f..3f+2
+    sides = sides - min(int(sides.min()), 0)  # out-of-range indices are counted as given
+    side_keys = sides[:, 0] * (int(sides.max()) + 1) + sides[:, 1]
+    edge_keys, edge_of_side, uses = np.unique(side_keys, return_inverse=True, return_counts=True)
+    edge_of_side = edge_of_side.reshape(-1)
+    boundary = int(np.sum(uses == 1))
+    nonmanifold = int(np.sum(uses > 2))
+    # bipartite face-edge graph: its components are the edge-connected face components
+    face_of_side = np.repeat(np.arange(m), 3)
+    graph = coo_matrix(
+        (np.ones(3 * m, dtype=np.int8), (face_of_side, m + edge_of_side)), shape=(m + len(edge_keys),) * 2
+    )
+    components, _ = connected_components(graph, directed=False)
+    out.update(
+        boundary_edges=boundary,
+        nonmanifold_edges=nonmanifold,
+        components=int(components),
+        watertight=bool(boundary == 0 and nonmanifold == 0),
+    )
+    return out
+
