@@ -41,10 +41,13 @@ def sample_surface(vertices: np.ndarray, faces: np.ndarray, n: int, rng: np.rand
 
     Raises
     ------
+    TypeError
+        When ``rng`` is not a Generator (seeds become generators in :mod:`benchmark.seeding` only).
     ValueError
         When the mesh has no face of positive finite area.
     """
-    rng = np.random.default_rng(rng)
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     a = vertices[faces[:, 0]]

@@ -6,6 +6,7 @@
 import pytest
 
 from benchmark.sampler import sample_training_data
+from benchmark.seeding import job_streams
 from datasets import get_dataset
 
 
@@ -17,5 +18,8 @@ def shape():
 
 @pytest.mark.parametrize("total", [200_000, 2_000_000])
 def test_sample_training_data(benchmark, shape, total):
-    samples = benchmark(sample_training_data, shape.vertices, shape.faces, total, 0, shape.content_hash)
+    def draw():  # the run layer's stream of (shape, seed 0), fresh for every round
+        return sample_training_data(shape.vertices, shape.faces, total, job_streams(shape.content_hash, 0).sampler_rng())
+
+    samples = benchmark(draw)
     assert len(samples) == total

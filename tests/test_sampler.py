@@ -4,7 +4,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from benchmark.sampler import GROUPS, group_counts, sample_surface_points, sample_training_data
+from benchmark.sampler import GROUPS, group_counts, sample_training_data
+from benchmark.seeding import job_streams
+from benchmark.surface import sample_surface
 
 
 @pytest.fixture(scope="module")
@@ -19,27 +21,9 @@ def test_group_counts_follow_fractions_and_sum():
     assert group_counts(7).sum() == 7
 
 
-def test_surface_points_lie_on_sphere(unit_sphere):
-    V, F = unit_sphere
-    p = sample_surface_points(V, F, 20000, np.random.default_rng(0))
-    r = np.linalg.norm(p, axis=1)
-    # icosphere(4) chords sit at most ~0.5 * (1 - cos(edge/2)) below the sphere
-    assert r.max() <= 0.5 + 1e-9 and r.min() > 0.497
-
-
-def test_area_uniform_on_two_squares_of_different_size():
-    # square A (area 1) and square B (area 4): B must get ~80% of the points
-    V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [5, 0, 0], [7, 0, 0], [7, 2, 0], [5, 2, 0]], float)
-    F = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
-    p = sample_surface_points(V, F, 100000, np.random.default_rng(1))
-    frac_b = np.mean(p[:, 0] >= 5)
-    assert abs(frac_b - 0.8) < 0.01
-    assert np.all((p[:, 0] >= 0) & (p[:, 0] <= 7) & (p[:, 1] >= 0) & (p[:, 1] <= 2))
-
-
 def test_noise_scales_per_group(unit_sphere):
     V, F = unit_sphere
-    s = sample_training_data(V, F, 200000, seed=3)
+    s = sample_training_data(V, F, 200000, np.random.default_rng(3))
     displacement = s.points - s.centres
     for gi, (name, _, _, sigma) in enumerate(GROUPS):
         d = displacement[s.group == gi]
@@ -57,15 +41,28 @@ def test_noise_scales_per_group(unit_sphere):
     assert box.min() >= -0.5 - 0.01 - 1e-6 and box.max() <= 0.5 + 0.01 + 1e-6
 
 
-def test_same_seed_same_samples_other_seed_differs(unit_sphere):
+def test_surface_centres_are_the_shared_surface_samplers_points(unit_sphere):
+    """One surface sampler: the 900 surface centres of 1000 samples are the first draws of the
+    generator, i.e. exactly ``sample_surface(V, F, 900, same generator)``'s points (in float32)."""
     V, F = unit_sphere
-    a = sample_training_data(V, F, 5000, seed=7)
-    b = sample_training_data(V, F, 5000, seed=7)
-    c = sample_training_data(V, F, 5000, seed=8)
+    s = sample_training_data(V, F, 1000, np.random.default_rng(11))
+    points, _ = sample_surface(V, F, 900, np.random.default_rng(11))
+    assert np.array_equal(s.centres[s.group <= 2], points.astype(np.float32))
+
+
+def test_same_stream_same_samples_other_seed_differs(unit_sphere):
+    """The run layer passes the sampler stream of (shape, seed) (benchmark.seeding)."""
+    V, F = unit_sphere
+    a = sample_training_data(V, F, 5000, job_streams("shape-a", 7).sampler_rng())
+    b = sample_training_data(V, F, 5000, job_streams("shape-a", 7).sampler_rng())
+    c = sample_training_data(V, F, 5000, job_streams("shape-a", 8).sampler_rng())
     assert np.array_equal(a.segments, b.segments) and np.array_equal(a.group, b.group)
     assert not np.array_equal(a.points, c.points)
 
 
-def test_rejects_non_positive_count(unit_sphere):
+def test_rejects_non_positive_count_and_a_seed_instead_of_a_generator(unit_sphere):
     with pytest.raises(ValueError, match="positive"):
-        sample_training_data(*unit_sphere, 0, seed=0)
+        sample_training_data(*unit_sphere, 0, np.random.default_rng(0))
+    # a bare seed would be a second seed derivation: refused in one line
+    with pytest.raises(TypeError, match="^rng must be a numpy.random.Generator, got int$"):
+        sample_training_data(*unit_sphere, 100, 7)
