@@ -15,6 +15,7 @@ from scipy.spatial.distance import cdist
 
 from benchmark import metrics as M
 from benchmark.metrics.__main__ import main
+from benchmark.seeding import job_streams
 from benchmark.surface import sample_surface
 from tests.conftest import REPO
 
@@ -306,6 +307,36 @@ def test_same_seed_same_numbers_other_seed_other_numbers():
     c = M.evaluate(v, f, pv, f, n_points=20_000, seed=6)
     assert metric_values(a) == metric_values(b)
     assert a["cd"] != c["cd"]
+
+
+def test_a_seed_sequence_seeds_like_its_int_and_ignores_earlier_spawns():
+    """``SeedSequence(5)`` spawns the same two children as the int 5, so the numbers are equal; a
+    SeedSequence that already spawned children (as the run layer's job stream may have) still gives
+    the same numbers, because evaluate rebuilds it from its state. The result records its state."""
+    v, f = box(2.0)
+    pv = v * 1.01
+    as_int = M.evaluate(v, f, pv, f, n_points=20_000, seed=5)
+    sequence = np.random.SeedSequence(5)
+    first = M.evaluate(v, f, pv, f, n_points=20_000, seed=sequence)
+    sequence.spawn(3)  # a caller used the same sequence for something else in between
+    second = M.evaluate(v, f, pv, f, n_points=20_000, seed=sequence)
+    drop = ("seconds", "seed")
+    assert {k: x for k, x in first.items() if k not in drop} == {k: x for k, x in as_int.items() if k not in drop}
+    assert metric_values(second) == metric_values(first)
+    assert first["seed"] == "SeedSequence(entropy=5, spawn_key=(), pool_size=4)" and as_int["seed"] == 5
+    # the run layer's metric stream of (shape, seed): a spawned child, recorded with its spawn key
+    stream = job_streams("shape-a", 5).metrics
+    r = M.floor(v, f, n_points=5_000, seed=stream)
+    assert r["seed"] == f"SeedSequence(entropy={stream.entropy}, spawn_key=(2,), pool_size=4)"
+    assert metric_values(M.floor(v, f, n_points=5_000, seed=stream)) == metric_values(r)
+    json.dumps(r)  # JSON-able as it is
+
+
+@pytest.mark.parametrize("seed", [-1, 1.5, "7", True])
+def test_a_seed_that_is_neither_a_non_negative_int_nor_a_seed_sequence_is_refused(seed):
+    v, f = box(2.0)
+    with pytest.raises(ValueError, match="^seed must be a non-negative int or a numpy.random.SeedSequence, got "):
+        M.evaluate(v, f, v, f, n_points=100, seed=seed)
 
 
 # ---------------------------------------------------------------- validity columns

@@ -15,6 +15,25 @@ from benchmark.surface import sample_surface
 
 __all__ = ["evaluate", "floor"]
 
+Seed = int | np.random.SeedSequence
+
+
+def _sampling_streams(seed: Seed) -> tuple[np.random.Generator, np.random.Generator, int | str]:
+    """The GT and prediction generators (children 0 and 1 of the seed's SeedSequence) and the seed
+    as the result records it (the int itself; for a SeedSequence, its state as a string).
+
+    A SeedSequence is rebuilt from its entropy, spawn key and pool size before spawning, so the
+    streams do not depend on how many children it spawned before this call."""
+    if isinstance(seed, np.random.SeedSequence):
+        root = np.random.SeedSequence(seed.entropy, spawn_key=seed.spawn_key, pool_size=seed.pool_size)
+        record = f"SeedSequence(entropy={seed.entropy}, spawn_key={seed.spawn_key}, pool_size={seed.pool_size})"
+    elif isinstance(seed, (int, np.integer)) and not isinstance(seed, (bool, np.bool_)) and seed >= 0:
+        root, record = np.random.SeedSequence(int(seed)), int(seed)
+    else:
+        raise ValueError(f"seed must be a non-negative int or a numpy.random.SeedSequence, got {seed!r}")
+    gt_stream, pred_stream = (np.random.default_rng(s) for s in root.spawn(2))
+    return gt_stream, pred_stream, record
+
 
 def _bbox(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     used = vertices[np.unique(faces)]
@@ -37,7 +56,7 @@ def evaluate(
     pred_vertices,
     pred_faces,
     preset: str | MetricPreset = "default",
-    seed: int = 0,
+    seed: Seed = 0,
     n_points: int | None = None,
 ) -> dict:
     """All SPEC section 7 metrics of a prediction against a GT mesh. Never raises on the prediction.
@@ -45,8 +64,10 @@ def evaluate(
     Inputs are vertex (n, 3) and face (m, 3) arrays in one frame: the GT's canonical frame for the
     ``default`` preset (they are used as given); for ``ndc`` both are first mapped by
     ``x -> (x - c) / D`` (c, D = GT bounding-box centre and diagonal). ``n_points`` overrides the
-    preset's sample count. GT samples come from stream 0 and prediction samples from stream 1 of
-    ``SeedSequence(seed)``.
+    preset's sample count. GT samples come from child 0 and prediction samples from child 1 of
+    ``SeedSequence(seed)`` for an int ``seed``, or of the SeedSequence ``seed`` (the run layer
+    passes ``benchmark.seeding.job_streams(shape_hash, seed).metrics``); the SeedSequence is
+    rebuilt from its state first, so its earlier spawns do not matter.
 
     Returns a flat dict of raw (unscaled) values: ``cd, cd_gt_to_pred, cd_pred_to_gt, nc``,
     ``f1_*/precision_*/recall_*`` per threshold, ``ecd, ef1, eprecision, erecall, ecd_flag``,
@@ -93,7 +114,7 @@ def evaluate(
     usable = _usable_faces(pred_vertices, pred_faces)
     seconds["validity"] = time.perf_counter() - t
 
-    gt_stream, pred_stream = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
+    gt_stream, pred_stream, seed_record = _sampling_streams(seed)
     t = time.perf_counter()
     gt_points, gt_normals = sample_surface(gt_vertices, gt_faces, n, gt_stream)
     try:
@@ -109,7 +130,7 @@ def evaluate(
     pred_points, pred_normals = pred_points[order], pred_normals[order]
     seconds["sample"] = time.perf_counter() - t
 
-    result = {"preset": preset.name, "n_points": n, "seed": int(seed)}
+    result = {"preset": preset.name, "n_points": n, "seed": seed_record}
     t = time.perf_counter()
     if empty:
         result.update(cd=float("nan"), cd_gt_to_pred=float("nan"), cd_pred_to_gt=float("nan"), nc=float("nan"))
@@ -155,7 +176,7 @@ def evaluate(
     return result
 
 
-def floor(gt_vertices, gt_faces, preset: str | MetricPreset = "default", seed: int = 0, n_points: int | None = None) -> dict:
+def floor(gt_vertices, gt_faces, preset: str | MetricPreset = "default", seed: Seed = 0, n_points: int | None = None) -> dict:
     """The protocol's noise floor: the GT scored against an independent resample of itself.
 
     Identical to ``evaluate(gt, gt, preset, seed)``: the prediction's samples come from a
