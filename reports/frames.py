@@ -1,0 +1,75 @@
+"""The input contract of the reports: the results and floor frames, checked once.
+
+``results`` has one row per (shape, method, seed) job with the columns of
+:mod:`benchmark.run.schema` (``shape, method, seed, status ('ok'|'failed'), error``, raw metric
+columns ``cd, nc, f1_<tau>, ecd, ef1``, the flags ``empty_prediction`` and ``ecd_flag``, the
+validity columns and wall-clock seconds in columns ending in ``_s``) plus any extra metric or timing
+columns a preset or a method adds. ``floor`` has one row per shape with the same metric columns:
+the GT against an independent resample of itself (SPEC section 7). Metric values are raw: tables
+apply the preset's multipliers.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+REQUIRED = ("shape", "method", "seed", "status", "error")
+
+
+def check_results(results, what: str = "results") -> pd.DataFrame:
+    """A copy of the results frame with ``shape`` and ``method`` as text.
+
+    Raises
+    ------
+    ValueError
+        One line, when ``results`` is not a DataFrame or lacks a column of :data:`REQUIRED`.
+    """
+    if not isinstance(results, pd.DataFrame):
+        raise ValueError(f"{what} must be a pandas DataFrame, got {type(results).__name__}")
+    missing = [c for c in REQUIRED if c not in results.columns]
+    if missing:
+        raise ValueError(f"{what} frame lacks column(s) {', '.join(missing)}")
+    df = results.copy()
+    df["shape"] = df["shape"].astype(str)
+    df["method"] = df["method"].astype(str)
+    return df
+
+
+def check_floor(floor) -> pd.DataFrame | None:
+    """The floor rows that were computed (status 'ok' when the frame has a status), shape as text;
+    None when there are none."""
+    if floor is None:
+        return None
+    if not isinstance(floor, pd.DataFrame):
+        raise ValueError(f"floor must be a pandas DataFrame or None, got {type(floor).__name__}")
+    df = floor.copy()
+    if "shape" in df.columns:
+        df["shape"] = df["shape"].astype(str)
+    if "status" in df.columns:  # a floor row that could not be computed is not a reference
+        df = df[df["status"] == "ok"]
+    return df if len(df) else None
+
+
+def ok_jobs(results: pd.DataFrame) -> pd.DataFrame:
+    """The successful jobs (status 'ok')."""
+    return results[results["status"] == "ok"]
+
+
+def numeric(frame: pd.DataFrame, column: str) -> pd.Series:
+    """``frame[column]`` as float (NaN where not a number); all NaN when the column is absent."""
+    if column not in frame.columns:
+        return pd.Series(np.nan, index=frame.index, dtype=float)
+    return pd.to_numeric(frame[column], errors="coerce").astype(float)
+
+
+def as_bool(values: pd.Series) -> pd.Series:
+    """A 0/1 or bool column (SQLite stores flags as integers) as bool; NaN -> False."""
+    return pd.to_numeric(values, errors="coerce").fillna(0) > 0.5
+
+
+def one_line(text) -> str:
+    """An error text on one line (whitespace runs collapsed); a placeholder when none was recorded."""
+    if text is None or (isinstance(text, float) and not np.isfinite(text)):
+        return "(no error text recorded)"
+    return " ".join(str(text).split())

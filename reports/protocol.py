@@ -1,0 +1,84 @@
+"""The run context the reports are given, and what they say about the protocol.
+
+The run layer passes ``context``, a flat dict with the keys of :data:`CONTEXT_KEYS`:
+
+========== =====================================================================
+dataset     dataset name (str)
+task        'encode'
+mode        'neural' or 'oracle'
+budget      budget name (str), None in oracle mode; budget_values its values (dict) or None
+grid        N, the extraction grid has N³ points on [-1, 1]³
+seeds       list of int
+methods     method names in display order; shapes: shape names in dataset order
+metric_preset  a key of ``benchmark.metrics.PRESETS``
+eval_points the effective number of metric samples per mesh (int)
+device      e.g. 'cpu (AMD EPYC 7B13)'; cpu_model, gpu: str or None
+git_commit  str or None
+========== =====================================================================
+
+The metric protocol (which metrics, their multipliers, the protocol text) comes from the preset
+itself: ``PRESETS[name].headline_metrics()`` and ``PRESETS[name].describe_items(n_points)``.
+"""
+
+from __future__ import annotations
+
+from benchmark.metrics import PRESETS
+
+CONTEXT_KEYS = ("dataset", "task", "mode", "budget", "budget_values", "grid", "seeds", "methods", "shapes",
+                "metric_preset", "eval_points", "device", "cpu_model", "gpu", "git_commit")
+
+
+def check_context(context) -> dict:
+    """``context`` as a dict, checked: every key of :data:`CONTEXT_KEYS` and a known metric preset.
+
+    Raises
+    ------
+    ValueError
+        One line naming the missing keys or the unknown preset.
+    """
+    if not isinstance(context, dict):
+        raise ValueError(f"context must be a dict, got {type(context).__name__}")
+    missing = [k for k in CONTEXT_KEYS if k not in context]
+    if missing:
+        raise ValueError(f"context lacks key(s) {', '.join(missing)}")
+    if context["metric_preset"] not in PRESETS:
+        raise ValueError(f"unknown metric preset '{context['metric_preset']}'; known: {', '.join(PRESETS)}")
+    return context
+
+
+def headline_metrics(context: dict, columns) -> list:
+    """The preset's ``HeadlineMetric`` s (paper order: CD, NC, F1@tau..., ECD, EF1) whose column is
+    in ``columns``."""
+    columns = set(columns)
+    return [m for m in PRESETS[context["metric_preset"]].headline_metrics() if m.column in columns]
+
+
+def device_text(context: dict) -> str:
+    """The device, with the GPU and CPU model when the device text does not already name them."""
+    text = str(context["device"] or "device not recorded")
+    extra = [str(context[k]) for k in ("gpu", "cpu_model") if context[k] and str(context[k]) not in text]
+    return text + (f" ({'; '.join(extra)})" if extra else "")
+
+
+def protocol_items(context: dict) -> list[tuple[str, str]]:
+    """(label, value) pairs stating the run's protocol, for captions and the HTML page: dataset,
+    task, mode, budget, grid, seeds, then the metric preset's own description."""
+    items = [("dataset", f"{context['dataset']} ({len(context['shapes'])} shapes)"),
+             ("task", str(context["task"])), ("mode", str(context["mode"]))]
+    if context["budget"] is not None:
+        values = context["budget_values"] or {}
+        items.append(("budget", str(context["budget"]) + (
+            " (" + ", ".join(f"{k} {v}" for k, v in values.items()) + ")" if values else "")))
+    grid = int(context["grid"])
+    items += [("grid", f"{grid}³ points on [-1, 1]³"), ("seeds", ", ".join(str(s) for s in context["seeds"]))]
+    return items + PRESETS[context["metric_preset"]].describe_items(context["eval_points"])
+
+
+def protocol_caption(context: dict) -> str:
+    """'Protocol: dataset: ...; mode: ...; ... .' (one line)."""
+    return "Protocol: " + "; ".join(f"{k}: {v}" for k, v in protocol_items(context)) + "."
+
+
+def report_title(context: dict, what: str = "summary") -> str:
+    """'salsbench summary: <dataset>'."""
+    return f"salsbench {what}: {context['dataset']}"
