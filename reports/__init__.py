@@ -2,16 +2,21 @@
 
 Public API
 ----------
-write_reports(results, floor, config, out_dir, meshes_dir=None) -> {name: Path}
+write_reports(results, floor, context, out_dir, meshes_dir=None) -> {name: Path}
     summary.md, summary.tex, timing.csv, timing.md and report.html in ``out_dir``.
-compare_runs(run_frames, out_dir) -> {name: Path}
-    The same files for several runs side by side; ``run_frames`` items are
-    (label, results, floor, config[, meshes_dir]) tuples or dicts with keys name|label, results,
-    floor, config (as ``run_benchmark.py report RUN_DIR ...`` builds them).
+compare_runs(runs, out_dir) -> {name: Path}
+    The same files for several runs side by side; ``runs`` is a list of dicts with keys name,
+    results, floor, context, meshes_dir.
 render_mesh(vertices, faces, colors=None, size=(256, 256), ...) -> PNG bytes (headless, CPU).
 
-Frames: ``results`` one row per (shape, method, seed) job, raw metric units; ``floor`` one row per
-shape (GT against a resample of itself). See :mod:`reports.tables` for the columns and statistics.
+Inputs: ``results`` one row per (shape, method, seed) job, raw metric units, and ``floor`` one
+row per shape (:mod:`reports.frames`); ``context`` the run's settings (:mod:`reports.protocol`).
+A bad frame or context raises ValueError with a one-line message.
+
+Modules: ``table`` (table model, Markdown/LaTeX writers), ``frames`` (input checks), ``protocol``
+(context, preset text), ``style`` (method order and colours), ``statistics`` (per-method
+statistics and their table), ``summary`` (the run's tables, summary.md/.tex), ``timing``,
+``compare`` (several runs), ``plots``, ``render`` (thumbnails), ``html`` (report.html).
 """
 
 from __future__ import annotations
@@ -21,47 +26,38 @@ from pathlib import Path
 import pandas as pd
 
 from reports.render import render_mesh
-from reports.tables import (
-    MetricSpec,
-    as_runs,
-    build_summary,
-    check_results,
-    metric_specs,
-    timing_frame,
-    write_comparison_tables,
-    write_tables,
-)
 
-__all__ = ["write_reports", "compare_runs", "render_mesh", "metric_specs", "MetricSpec", "build_summary", "timing_frame"]
+__all__ = ["write_reports", "compare_runs", "render_mesh"]
 
 
-def write_reports(results: pd.DataFrame, floor: pd.DataFrame | None, config: dict | None, out_dir: Path,
-                  meshes_dir: Path | None = None, *, gallery_limit: int = 24, html: bool = True) -> dict[str, Path]:
+def write_reports(results: pd.DataFrame, floor: pd.DataFrame | None, context: dict, out_dir: Path,
+                  meshes_dir: Path | None = None, *, gallery_limit: int = 24) -> dict[str, Path]:
     """Write the run's tables and report into ``out_dir``; returns {file name: path}.
 
-    Tables first (cheap, always written), then report.html (renders thumbnails from
-    ``meshes_dir/<shape>/gt.ply`` and ``<method>.ply``; the first ``gallery_limit`` shapes).
-    A bad frame raises ValueError with a one-line message.
+    Tables first (cheap), then report.html, which renders thumbnails from
+    ``meshes_dir/<shape>/gt.ply`` and ``<method>.ply`` for the first ``gallery_limit`` shapes.
     """
     from reports.html import write_html
+    from reports.summary import build_summary, write_summary
+    from reports.timing import write_timing
 
-    config = dict(config or {})
     out_dir = Path(out_dir)
-    summary = build_summary(results, floor, config)
-    paths = write_tables(results, floor, config, out_dir, summary=summary)
-    if html:
-        timing = timing_frame(check_results(results), config)
-        paths["report.html"] = write_html(out_dir / "report.html", results, floor, config, summary, timing,
-                                          Path(meshes_dir) if meshes_dir is not None else None,
-                                          gallery_limit=gallery_limit)
+    summary = build_summary(results, floor, context)
+    paths = write_summary(summary, context, out_dir)
+    timing_paths, timing = write_timing(summary.results, context, out_dir)
+    paths.update(timing_paths)
+    paths["report.html"] = write_html(out_dir / "report.html", summary, timing, context,
+                                      Path(meshes_dir) if meshes_dir is not None else None,
+                                      gallery_limit=gallery_limit)
     return paths
 
 
-def compare_runs(run_frames, out_dir: Path) -> dict[str, Path]:
+def compare_runs(runs: list[dict], out_dir: Path) -> dict[str, Path]:
     """Write summary.md/.tex, timing.csv/.md and report.html comparing several runs in ``out_dir``."""
+    from reports.compare import build_comparison, write_comparison
     from reports.html import write_comparison_html
 
-    runs = as_runs(run_frames)
-    paths, tables, timing = write_comparison_tables(runs, Path(out_dir))
-    paths["report.html"] = write_comparison_html(Path(out_dir) / "report.html", runs, tables, timing)
+    comparison = build_comparison(runs)
+    paths = write_comparison(comparison, Path(out_dir))
+    paths["report.html"] = write_comparison_html(Path(out_dir) / "report.html", comparison)
     return paths

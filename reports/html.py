@@ -1,84 +1,58 @@
 """report.html: one self-contained page (inline CSS, images as base64 data URIs, no script, no network).
 
-Sections: protocol, accuracy summary (best per column highlighted), per-shape plots (matplotlib SVG),
-a gallery (per shape: GT and every method rendered headless with :mod:`reports.render`, plus each
-method coloured by its distance to the GT surface, with the colour scale), validity, timing (table and
-stacked bars), failed jobs with their error text, and the full configuration.
+Sections: summary (best per column highlighted, the mean table with its empty and ECD NaN counts and
+what each mean is over), a gallery (per shape: GT and every method rendered headless with
+:mod:`reports.render`, plus each method coloured by its distance to the GT surface, with the colour
+scale), per-shape plots (:mod:`reports.plots`) and tables, validity, timing, failed jobs with their
+error text, and the protocol with the run context. Every text from the run is escaped with
+:func:`html.escape`; the stylesheet is ``report.css`` beside this module.
 """
 
 from __future__ import annotations
 
 import base64
-import html
-import io
-import json
+from html import escape
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from reports import render
-from reports.tables import (
-    Summary,
-    Table,
-    check_floor,
-    check_results,
-    device_text,
-    fmt,
-    numeric,
-    ok_jobs,
-    one_line,
-    protocol_items,
-    timing_caption,
-    timing_table,
-)
+from benchmark.serialize import dumps
+from reports import plots, render
+from reports.frames import numeric, ok_jobs, one_line
+from reports.protocol import device_text, protocol_items, report_title
+from reports.style import method_colors
+from reports.summary import Summary
+from reports.table import Table, fmt, metric_header
+from reports.timing import timing_caption, timing_table
 
-#: Method colours: fixed for the registry's methods, then a qualitative palette.
-METHOD_COLORS = {"sals": "#e4572e", "sdf": "#3a7fc1", "bof": "#29a37a", "udf": "#f2a541"}
-PALETTE = ["#8367c7", "#6c757d", "#d1495b", "#00798c", "#edae49", "#66a182", "#2e4057", "#b07aa1"]
-#: Stage colours, fixed per stage so every run's timing bars read alike.
-STAGE_COLORS = {"load_s": "#d9d9d9", "sample_s": "#8dd3c7", "label_s": "#80b1d3", "fit_s": "#3b6fb6",
-                "query_s": "#fdb462", "extract_s": "#fb8072", "metrics_s": "#b3de69"}
-SPARE_STAGE_COLORS = ["#bebada", "#fccde5", "#ccebc5", "#ffed6f", "#bc80bd"]
-DEFAULT_ERROR_VMAX = 0.01  # canonical units; = the default protocol's F1@0.01 threshold
+CSS = Path(__file__).with_name("report.css").read_text(encoding="utf-8")
+#: Clip of the error colouring, canonical frame units (= the default protocol's F1@0.01 threshold).
+ERROR_VMAX = 0.01
 GALLERY_LIMIT = 24
-
-
 #: Meshes with more faces are drawn from a seeded random subset of this many faces (thumbnails only).
 MAX_RENDER_FACES = 300_000
-
-
-def method_colors(methods: list[str]) -> dict[str, str]:
-    spare = iter(PALETTE * 4)
-    return {m: METHOD_COLORS.get(m.lower()) or next(spare) for m in methods}
+CHIPS = ("dataset", "mode", "budget", "grid", "seeds", "metric preset")
 
 
 def esc(text) -> str:
-    return html.escape(str(text), quote=True)
+    return escape(str(text), quote=True)
 
 
 def data_uri(payload: bytes, mime: str) -> str:
     return f"data:{mime};base64," + base64.b64encode(payload).decode("ascii")
 
 
-# ---------------------------------------------------------------------------------------------
-# Tables
-# ---------------------------------------------------------------------------------------------
-
-
 def table_html(table: Table, css_class: str = "") -> str:
-    head = "".join(f'<th class="{"l" if a == "l" else "r"}">{esc(h)}</th>' for h, a in zip(table.headers, table.align))
+    """A :class:`reports.table.Table` as an HTML table: bold method cells highlighted as best,
+    bold cells of other rows (totals) strong, 'failed' cells red, hover text as ``title``."""
+    head = "".join(f'<th class="{a}">{esc(h)}</th>' for h, a in zip(table.headers, table.align))
     rows = []
     for cells, kind in zip(table.rows, table.row_kinds):
         tds = []
         for cell, align in zip(cells, table.align):
-            cls = ["l" if align == "l" else "r"]
-            if cell.bold and kind in ("method", "run"):
-                cls.append("best")
-            if cell.bold and kind not in ("method", "run"):
-                cls.append("strong")
-            if cell.text == "failed":
-                cls.append("fail")
+            cls = [align] + (["best" if kind == "method" else "strong"] if cell.bold else [])
+            cls += ["fail"] if cell.text == "failed" else []
             title = f' title="{esc(cell.title)}"' if cell.title else ""
             text = esc(cell.text)
             if kind == "step" and align == "l":
@@ -89,130 +63,18 @@ def table_html(table: Table, css_class: str = "") -> str:
             f'<tbody>{"".join(rows)}</tbody></table></div>')
 
 
-# ---------------------------------------------------------------------------------------------
-# Plots (matplotlib, embedded as SVG data URIs so figures never share element ids)
-# ---------------------------------------------------------------------------------------------
+def notes_html(table: Table) -> str:
+    return "".join(f'<p class="note">{esc(n)}</p>' for n in table.notes)
 
 
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
-    plt.rcParams.update({
-        "svg.hashsalt": "salsbench", "font.size": 9, "axes.spines.top": False, "axes.spines.right": False,
-        "axes.grid": True, "grid.color": "#e5e7eb", "grid.linewidth": 0.8, "axes.axisbelow": True,
-        "axes.edgecolor": "#9ca3af", "axes.titleweight": "bold", "axes.titlesize": 10,
-        "font.family": "DejaVu Sans",
-    })
-    return plt
-
-
-def figure_uri(fig) -> str:
-    plt = _pyplot()
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="svg", bbox_inches="tight", metadata={"Date": None})
-    plt.close(fig)
-    return data_uri(buffer.getvalue(), "image/svg+xml")
-
-
-def safe_plot(make, *args) -> tuple[str | None, str]:
-    """(data URI or None, '' or a one-line note): a failing plot never breaks the report."""
+def plot_html(make, *args, alt: str) -> str:
+    """An inline SVG image of ``make(*args)`` ('' when it has nothing to plot); a failing plot is a
+    one-line note, never a broken report."""
     try:
-        return make(*args), ""
+        svg = make(*args)
     except Exception as exc:  # noqa: BLE001
-        return None, f'<p class="note">Plot unavailable: {esc(one_line(exc))}</p>'
-
-
-def per_shape_plot(results: pd.DataFrame, floor: pd.DataFrame | None, summary: Summary, colors: dict) -> str | None:
-    """Dot plot: one panel per key metric (CD, ECD, EF1 when present), a row per shape, a dot per
-    method (mean over seeds, a line over the seeds' range), the floor as a black bar. More than 40
-    shapes: box plots per method instead."""
-    plt = _pyplot()
-    wanted = [s for s in summary.specs if s.column in ("cd", "ecd", "ef1")] or summary.specs[:3]
-    if not wanted or not summary.methods:
-        return None
-    ok = ok_jobs(results)
-    shapes, methods = summary.shapes, summary.methods
-    many = len(shapes) > 40
-    height = 0.9 + (0.5 * len(methods) if many else 0.28 * len(shapes) + 0.25)
-    fig, axes = plt.subplots(1, len(wanted), figsize=(3.4 * len(wanted) + 1.2, max(height, 2.2)), sharey=True)
-    axes = np.atleast_1d(axes)
-    y = np.arange(len(shapes))
-    offsets = (np.arange(len(methods)) - (len(methods) - 1) / 2) * (0.6 / max(len(methods), 1))
-    for ax, spec in zip(axes, wanted):
-        if many:
-            data = [numeric(ok[ok["method"] == m], spec.column).dropna().to_numpy() * spec.scale for m in methods]
-            try:  # matplotlib >= 3.10 names these orientation / tick_labels
-                box = ax.boxplot(data, orientation="horizontal", patch_artist=True, widths=0.6, tick_labels=methods)
-            except TypeError:
-                box = ax.boxplot(data, vert=False, patch_artist=True, widths=0.6, labels=methods)
-            ax.invert_yaxis()
-            for patch, m in zip(box["boxes"], methods):
-                patch.set_facecolor(colors[m]), patch.set_alpha(0.75)
-            if floor is not None and spec.column in floor.columns:
-                ax.axvline(numeric(floor, spec.column).mean() * spec.scale, color="k", ls="--", lw=1)
-        else:
-            for k, m in enumerate(methods):
-                sel = ok[ok["method"] == m]
-                grouped = sel.assign(v=numeric(sel, spec.column) * spec.scale).groupby("shape")["v"]
-                mean, lo, hi = grouped.mean(), grouped.min(), grouped.max()
-                ys = np.array([i for i, s in enumerate(shapes) if s in mean.index and np.isfinite(mean[s])], dtype=int)
-                if not len(ys):
-                    continue
-                names = [shapes[i] for i in ys]
-                ax.hlines(ys + offsets[k], lo[names], hi[names], color=colors[m], lw=1.5, alpha=0.6)
-                ax.scatter(mean[names], ys + offsets[k], color=colors[m], s=26, zorder=3, label=m,
-                           edgecolor="white", linewidth=0.6)
-            if floor is not None and spec.column in floor.columns and "shape" in floor.columns:
-                fl = floor.assign(v=numeric(floor, spec.column) * spec.scale).groupby("shape")["v"].mean()
-                ys = np.array([i for i, s in enumerate(shapes) if s in fl.index and np.isfinite(fl[s])], dtype=int)
-                if len(ys):
-                    ax.scatter(fl[[shapes[i] for i in ys]], ys, marker="|", color="#111827", s=140, zorder=4,
-                               label="floor", linewidth=1.6)
-            ax.set_yticks(y, shapes)
-            ax.set_ylim(len(shapes) - 0.5, -0.5)
-        ax.set_title(spec.header)
-        ax.grid(axis="y", visible=False)
-    handles, labels = axes[0].get_legend_handles_labels()
-    if handles and not many:
-        fig.legend(handles, labels, loc="upper center", ncol=len(labels), frameon=False,
-                   bbox_to_anchor=(0.5, 1.0 + 0.35 / max(height, 2.2)))
-    fig.tight_layout()
-    return figure_uri(fig)
-
-
-def timing_plot(timing: pd.DataFrame, colors_for_stage=None) -> str | None:
-    """Horizontal stacked bars: mean seconds per stage per method (sub-steps not stacked)."""
-    plt = _pyplot()
-    stages = timing[timing["level"] == "stage"]
-    if stages.empty:
-        return None
-    methods = list(dict.fromkeys(timing["method"]))
-    names = list(dict.fromkeys(zip(stages["stage"], stages["label"])))
-    fig, ax = plt.subplots(figsize=(8.5, 0.9 + 0.45 * len(methods)))
-    left = np.zeros(len(methods))
-    spare = iter(SPARE_STAGE_COLORS * 4)
-    for stage, label in names:
-        vals = np.array([float(stages[(stages["method"] == m) & (stages["stage"] == stage)]["mean_s"].fillna(0).sum())
-                         for m in methods])
-        ax.barh(methods, vals, left=left, color=STAGE_COLORS.get(stage) or next(spare), label=label, height=0.6,
-                edgecolor="white", linewidth=0.6)
-        left += vals
-    totals = timing[timing["level"] == "total"]
-    for i, m in enumerate(methods):
-        t = totals[totals["method"] == m]["mean_s"]
-        text = f"{left[i]:.1f} s" + (f"  (total {float(t.iloc[0]):.1f} s)" if len(t) and np.isfinite(t.iloc[0]) else "")
-        ax.text(left[i], i, "  " + text, va="center", fontsize=8, color="#374151")
-    ax.set_xlim(0, max(left.max(), 1e-9) * 1.35)
-    ax.invert_yaxis()
-    ax.set_xlabel("seconds per job (mean)")
-    ax.grid(axis="y", visible=False)
-    ax.legend(ncol=len(names), frameon=False, loc="lower left", bbox_to_anchor=(0.0, 1.0), fontsize=8,
-              handlelength=1.2, columnspacing=1.0)
-    fig.tight_layout()
-    return figure_uri(fig)
+        return f'<p class="note">Plot unavailable: {esc(one_line(exc))}</p>'
+    return f'<img class="plot" src="{data_uri(svg, "image/svg+xml")}" alt="{esc(alt)}">' if svg else ""
 
 
 # ---------------------------------------------------------------------------------------------
@@ -239,86 +101,81 @@ def _img(png: bytes, alt: str) -> str:
     return f'<img src="{data_uri(png, "image/png")}" alt="{esc(alt)}" width="200" height="200">'
 
 
-def _shape_metrics_text(results: pd.DataFrame, shape: str, method: str, summary: Summary) -> str:
-    sel = ok_jobs(results[(results["shape"] == shape) & (results["method"] == method)])
-    parts = []
-    for spec in summary.specs:
-        if spec.column in ("cd", "ecd", "ef1"):
-            v = numeric(sel, spec.column).mean() * spec.scale
-            parts.append(f"{spec.name} {fmt(v, 2 if spec.column != 'ef1' else 2)}")
-    return " · ".join(parts)
+def _metrics_text(summary: Summary, shape: str, method: str) -> str:
+    """'CD 4.50 · ECD 2.00 · EF1 0.60': the shape's mean over seeds, table units."""
+    ok = ok_jobs(summary.results)
+    sel = ok[(ok["shape"] == shape) & (ok["method"] == method)]
+    return " · ".join(f"{m.name} {fmt(numeric(sel, m.column).mean() * m.scale, 2)}"
+                      for m in summary.metrics if m.column in plots.PLOTTED)
 
 
-def gallery_html(results: pd.DataFrame, floor, summary: Summary, meshes_dir: Path | None, config: dict,
-                 colors: dict, limit: int, size: int, vmax: float) -> str:
+def _prediction_figure(summary: Summary, shape: str, method: str, path: Path, gt, bounds, size: int,
+                       vmax: float) -> tuple[str, str, str]:
+    """(shaded thumbnail, error-coloured thumbnail, caption) of one prediction, or placeholders."""
+    jobs = summary.results[(summary.results["shape"] == shape) & (summary.results["method"] == method)]
+    good = ok_jobs(jobs)
+    if len(jobs) and not len(good):
+        err = jobs["error"].dropna()
+        return (_placeholder("failed", "failed", one_line(err.iloc[0]) if len(err) else "no error text"), "",
+                f"{len(jobs)} job(s) failed")
+    notes = [f"{len(jobs) - len(good)} of {len(jobs)} seeds failed"] if len(jobs) > len(good) else []
+    text = _metrics_text(summary, shape, method)
+    if not path.is_file():
+        return _placeholder("missing", "no mesh", f"{path.name} not found"), "", text
+    try:
+        V, F = read_mesh(path)
+        if not len(F):
+            return _placeholder("missing", "empty mesh", "the prediction has no faces"), "", text
+        if len(F) > MAX_RENDER_FACES:  # a thumbnail cannot show more; keeps huge outputs cheap
+            V, F = render.face_subset(V, F, MAX_RENDER_FACES)
+            notes.append(f"thumbnail of a random {MAX_RENDER_FACES:,}-face subset")
+        shaded = _img(render.render_mesh(V, F, size=(size, size), bounds=bounds, base_color=render.BASE_COLOR),
+                      f"{shape} {method}")
+        if gt is not None and len(gt[1]):
+            colors = render.error_colors(render.distances_to_mesh(V, *gt), vmax)
+            err = _img(render.render_mesh(V, F, colors=colors, size=(size, size), bounds=bounds),
+                       f"{shape} {method} error")
+        else:
+            err = _placeholder("missing", "no GT", "distance colouring needs gt.ply")
+    except Exception as exc:  # noqa: BLE001 -- one bad mesh never breaks the report
+        return _placeholder("failed", "render failed", one_line(exc)), "", ""
+    return shaded, err, " · ".join([text] + notes)
+
+
+def gallery_html(summary: Summary, meshes_dir: Path | None, colors: dict, limit: int, size: int,
+                 vmax: float) -> str:
+    """One card per shape (the first ``limit``): ``meshes_dir/<shape>/gt.ply`` and ``<method>.ply``."""
     if meshes_dir is None or not Path(meshes_dir).is_dir():
         return '<p class="muted">No meshes directory: thumbnails are not available for this report.</p>'
-    meshes_dir = Path(meshes_dir)
     shapes = summary.shapes[:limit]
     cards = []
     for shape in shapes:
-        folder = meshes_dir / shape
+        folder = Path(meshes_dir) / shape
         gt_path = folder / "gt.ply"
-        cells = []
-        gt = None
-        bounds = None
-        if gt_path.is_file():
+        gt = bounds = None
+        if not gt_path.is_file():
+            figures = [("GT", _placeholder("missing", "no GT mesh", f"{gt_path.name} not found"), "", "")]
+        else:
             try:
                 gt = read_mesh(gt_path)
                 if len(gt[1]):
                     used = gt[0][gt[1].ravel()]
                     bounds = (used.min(0), used.max(0))
-                cells.append(("GT", _img(render.render_mesh(*gt, size=(size, size), bounds=bounds,
-                                                            base_color=render.GT_COLOR), f"{shape} GT"),
-                              mini_legend(vmax), f"{len(gt[1]):,} faces"))
+                figures = [("GT", _img(render.render_mesh(*gt, size=(size, size), bounds=bounds,
+                                                          base_color=render.GT_COLOR), f"{shape} GT"),
+                            mini_legend(vmax), f"{len(gt[1]):,} faces")]
             except Exception as exc:  # noqa: BLE001
-                cells.append(("GT", _placeholder("missing", "unreadable GT", one_line(exc)), "", ""))
-        else:
-            cells.append(("GT", _placeholder("missing", "no GT mesh", f"{gt_path.name} not found"), "", ""))
-        for m in summary.methods:
-            jobs = results[(results["shape"] == shape) & (results["method"] == m)]
-            good = ok_jobs(jobs)
-            note = ""
-            if len(jobs) and not len(good):
-                err = jobs["error"].dropna()
-                cells.append((m, _placeholder("failed", "failed", one_line(err.iloc[0]) if len(err) else "no error text"),
-                              "", f"{len(jobs)} job(s) failed"))
-                continue
-            if len(jobs) > len(good):
-                note = f"{len(jobs) - len(good)} of {len(jobs)} seeds failed"
-            path = folder / f"{m}.ply"
-            if not path.is_file():
-                cells.append((m, _placeholder("missing", "no mesh", f"{path.name} not found"), "",
-                              _shape_metrics_text(results, shape, m, summary)))
-                continue
-            try:
-                V, F = read_mesh(path)
-                if not len(F):
-                    cells.append((m, _placeholder("missing", "empty mesh", "the prediction has no faces"), "",
-                                  _shape_metrics_text(results, shape, m, summary)))
-                    continue
-                if len(F) > MAX_RENDER_FACES:  # a thumbnail cannot show more; keeps huge outputs cheap
-                    V, F = render.face_subset(V, F, MAX_RENDER_FACES)
-                    note = (note + " · " if note else "") + f"thumbnail of a random {MAX_RENDER_FACES:,}-face subset"
-                shaded = _img(render.render_mesh(V, F, size=(size, size), bounds=bounds,
-                                                 base_color=render.BASE_COLOR), f"{shape} {m}")
-                if gt is not None and len(gt[1]):
-                    d = render.distances_to_mesh(V, *gt)
-                    err = _img(render.render_mesh(V, F, colors=render.error_colors(d, vmax), size=(size, size),
-                                                  bounds=bounds), f"{shape} {m} error")
-                else:
-                    err = _placeholder("missing", "no GT", "distance colouring needs gt.ply")
-                text = _shape_metrics_text(results, shape, m, summary)
-                cells.append((m, shaded, err, text + (f" · {note}" if note else "")))
-            except Exception as exc:  # noqa: BLE001 -- one bad mesh never breaks the report
-                cells.append((m, _placeholder("failed", "render failed", one_line(exc)), "", ""))
-        figures = []
-        for name, top, bottom, caption in cells:
-            dot = "" if name == "GT" else f'<i class="dot" style="background:{colors.get(name, "#999")}"></i>'
-            figures.append(f'<figure><figcaption class="name">{dot}{esc(name)}</figcaption>{top}{bottom}'
-                           f'<figcaption class="m">{esc(caption)}</figcaption></figure>')
+                gt = None
+                figures = [("GT", _placeholder("missing", "unreadable GT", one_line(exc)), "", "")]
+        figures += [(m, *_prediction_figure(summary, shape, m, folder / f"{m}.ply", gt, bounds, size, vmax))
+                    for m in summary.methods]
+        html_figures = []
+        for name, top, bottom, caption in figures:
+            dot = "" if name == "GT" else f'<i class="dot" style="background:{colors[name]}"></i>'
+            html_figures.append(f'<figure><figcaption class="name">{dot}{esc(name)}</figcaption>{top}{bottom}'
+                                f'<figcaption class="m">{esc(caption)}</figcaption></figure>')
         cards.append(f'<div class="shape card" id="shape-{esc(shape)}"><h3>{esc(shape)}</h3>'
-                     f'<div class="row">{"".join(figures)}</div></div>')
+                     f'<div class="row">{"".join(html_figures)}</div></div>')
     more = ""
     if len(summary.shapes) > len(shapes):
         more = f'<p class="muted">Showing the first {len(shapes)} of {len(summary.shapes)} shapes.</p>'
@@ -332,12 +189,11 @@ def mini_legend(vmax: float) -> str:
             f'<div class="vt"><span>≥ {vmax:g}</span><span>{vmax / 2:g}</span><span>0</span></div></div>')
 
 
-def colorbar_html(vmax: float, grid: int | None) -> str:
+def colorbar_html(vmax: float, grid: int) -> str:
+    """The error colour scale, in canonical units and in grid cells of the run's grid."""
     ticks = "".join(f"<span>{vmax * t:.4g}</span>" for t in (0, 0.25, 0.5, 0.75, 1.0))
-    cells = ""
-    if grid:
-        h = 2.0 / (int(grid) - 1)
-        cells = f" ({vmax / h:.2f} grid cells at {int(grid)}³, h = {h:.4f})"
+    h = 2.0 / (int(grid) - 1)
+    cells = f" ({vmax / h:.2f} grid cells at {int(grid)}³, h = {h:.4f})"
     return (f'<div class="cbar"><div class="bar" style="background:{render.error_gradient_css()}"></div>'
             f'<div class="ticks">{ticks}</div><p>Second row: distance from each predicted vertex to the GT '
             f'surface (exact, libigl), canonical frame units (a shape\'s largest side is 1.99), clipped at '
@@ -348,91 +204,19 @@ def colorbar_html(vmax: float, grid: int | None) -> str:
 # Page
 # ---------------------------------------------------------------------------------------------
 
-CSS = """
-*{box-sizing:border-box}
-body{margin:0;font:14px/1.5 system-ui,-apple-system,"Segoe UI",Roboto,"Helvetica Neue",Arial,sans-serif;
- color:#1f2937;background:#f3f4f6}
-header{background:linear-gradient(120deg,#111827 0%,#1e3a5f 60%,#23527c 100%);color:#f9fafb;padding:28px 0 22px}
-.wrap{max-width:1240px;margin:0 auto;padding:0 24px}
-header h1{margin:0 0 4px;font-size:26px;letter-spacing:.2px}
-header .sub{color:#cbd5e1;font-size:13px}
-.chips{margin-top:14px;display:flex;flex-wrap:wrap;gap:8px}
-.chip{background:rgba(255,255,255,.1);border:1px solid rgba(255,255,255,.18);border-radius:999px;padding:3px 11px;
- font-size:12.5px}
-.chip b{color:#93c5fd;font-weight:600;margin-right:4px}
-nav{position:sticky;top:0;z-index:5;background:#fff;border-bottom:1px solid #e5e7eb}
-nav .wrap{display:flex;gap:18px;overflow-x:auto;padding-top:9px;padding-bottom:9px}
-nav a{color:#374151;text-decoration:none;font-size:13px;white-space:nowrap}
-nav a:hover{color:#1d4ed8}
-main{padding:18px 0 40px}
-section.card,.card{background:#fff;border-radius:12px;box-shadow:0 1px 2px rgba(0,0,0,.06),0 4px 14px rgba(0,0,0,.04);
- padding:18px 22px;margin:18px 0}
-h2{font-size:18px;margin:0 0 10px}
-h3{font-size:15px;margin:0 0 10px}
-.shape h3{font-family:ui-monospace,SFMono-Regular,Menlo,Consolas,monospace}
-h4{font-size:13.5px;margin:18px 0 6px;color:#374151}
-table.compact{width:auto;min-width:420px}
-.muted,.note{color:#6b7280;font-size:12.5px}
-.highlights{display:flex;flex-wrap:wrap;gap:10px;margin:4px 0 14px}
-.hl{border:1px solid #e5e7eb;border-radius:10px;padding:8px 12px;min-width:130px}
-.hl .k{font-size:11.5px;color:#6b7280;letter-spacing:.2px}
-.hl .v{font-size:17px;font-weight:650}
-.tablewrap{overflow-x:auto}
-table{border-collapse:collapse;width:100%;font-variant-numeric:tabular-nums;font-size:13px}
-th{font-weight:600;color:#374151;background:#f9fafb;border-bottom:2px solid #d1d5db;padding:7px 10px;white-space:nowrap}
-td{padding:6px 10px;border-bottom:1px solid #eef0f3;white-space:nowrap}
-th.r,td.r{text-align:right}th.l,td.l{text-align:left}
-tbody tr:hover td{background:#f8fafc}
-td.best{font-weight:700;color:#065f46;background:#d1fae5}
-tbody tr:hover td.best{background:#a7f3d0}
-td.strong{font-weight:700}
-td.fail{color:#b91c1c;font-weight:600}
-tr.floor td{font-style:italic;color:#4b5563;background:#f9fafb;border-top:2px solid #e5e7eb}
-tr.total td,tr.sum td{border-top:2px solid #e5e7eb;background:#fafafa}
-tr.step td{color:#6b7280;font-size:12px}
-dl.proto{display:grid;grid-template-columns:max-content 1fr;gap:4px 18px;margin:0;font-size:13px}
-dl.proto dt{color:#6b7280}dl.proto dd{margin:0}
-img.plot{max-width:100%;height:auto;display:block;margin:6px auto}
-.shape .row{display:flex;flex-wrap:wrap;gap:14px}
-figure{margin:0;width:202px}
-figure img{display:block;border:1px solid #e5e7eb;border-radius:8px;background:#fff;margin-bottom:6px}
-figcaption.name{font-weight:650;font-size:13px;margin-bottom:4px}
-figcaption.m{font-size:11.5px;color:#4b5563;font-variant-numeric:tabular-nums}
-.dot{display:inline-block;width:9px;height:9px;border-radius:50%;margin-right:6px;vertical-align:middle}
-.ph{width:200px;height:200px;border-radius:8px;display:flex;flex-direction:column;justify-content:center;
- align-items:center;text-align:center;padding:12px;margin-bottom:6px;font-size:12px;overflow:hidden;word-break:break-word}
-.ph b{font-size:13px;margin-bottom:6px}
-.ph.failed{background:#fef2f2;border:1px solid #fecaca;color:#991b1b}
-.ph.failed span{font-family:ui-monospace,Menlo,Consolas,monospace;font-size:11px}
-.ph.missing{background:#f9fafb;border:1px dashed #d1d5db;color:#6b7280}
-.ph.blank{background:transparent;border:0}
-.ph.legend{flex-direction:row;gap:10px;background:#fafafa;border:1px solid #eef0f3;position:relative;padding-top:30px}
-.ph.legend .lt{position:absolute;top:8px;left:0;right:0;font-size:11.5px;color:#6b7280}
-.ph.legend .vbar{width:16px;height:140px;border-radius:4px;border:1px solid #d1d5db}
-.ph.legend .vt{height:140px;display:flex;flex-direction:column;justify-content:space-between;font-size:11px;color:#4b5563;text-align:left}
-.shape.card{box-shadow:none;border:1px solid #e5e7eb;margin:14px 0}
-.cbar{max-width:520px;margin:4px 0 12px}
-.cbar .bar{height:14px;border-radius:4px;border:1px solid #d1d5db}
-.cbar .ticks{display:flex;justify-content:space-between;font-size:11.5px;color:#4b5563;font-variant-numeric:tabular-nums}
-.cbar p{font-size:12px;color:#6b7280;margin:6px 0 0}
-.errors td.err{white-space:normal;font-family:ui-monospace,Menlo,Consolas,monospace;font-size:12px;color:#991b1b}
-pre{background:#0f172a;color:#e2e8f0;padding:14px;border-radius:8px;overflow:auto;font-size:12px}
-details summary{cursor:pointer;color:#1d4ed8}
-footer{color:#9ca3af;font-size:12px;text-align:center;padding:10px 0 30px}
-"""
-
 
 def _highlights(summary: Summary, colors: dict) -> str:
+    """A box per metric naming the best method's mean."""
+    mean = summary.stats.values["mean"].reindex(summary.methods)
     out = []
-    mean = summary.stats["mean"]
-    for spec in summary.specs:
-        vals = {m: mean.at[m, spec.column] for m in summary.methods if np.isfinite(mean.at[m, spec.column])}
-        if not vals:
+    for metric in summary.metrics:
+        values = mean[metric.column].dropna()
+        if not len(values):
             continue
-        best = (min if spec.lower_is_better else max)(vals, key=vals.get)
-        out.append(f'<div class="hl"><div class="k">best {esc(spec.header)}</div><div class="v">'
+        best = values.idxmin() if metric.lower_is_better else values.idxmax()
+        out.append(f'<div class="hl"><div class="k">best {esc(metric_header(metric))}</div><div class="v">'
                    f'<i class="dot" style="background:{colors[best]}"></i>{esc(best)} '
-                   f'<span class="muted">{fmt(vals[best])}</span></div></div>')
+                   f'<span class="muted">{fmt(values[best])}</span></div></div>')
     return f'<div class="highlights">{"".join(out)}</div>' if out else ""
 
 
@@ -445,12 +229,15 @@ def _failed_html(summary: Summary) -> str:
             f'<th class="r">seed</th><th class="l">error</th></tr></thead><tbody>{rows}</tbody></table></div>')
 
 
-def _json_default(value):
-    if isinstance(value, (np.integer,)):
-        return int(value)
-    if isinstance(value, (np.floating,)):
-        return float(value)
-    return str(value)
+def _protocol_html(context: dict) -> str:
+    items = protocol_items(context) + [("device", device_text(context))]
+    return '<dl class="proto">' + "".join(f"<dt>{esc(k)}</dt><dd>{esc(v)}</dd>" for k, v in items) + "</dl>"
+
+
+def _timing_html(timing: pd.DataFrame, context: dict, results: pd.DataFrame) -> str:
+    caption = timing_caption(timing, context, results)
+    return (plot_html(plots.timing_plot, timing, alt="timing per stage per method")
+            + table_html(timing_table(timing, "mean_s", caption)) + f'<p class="note">{esc(caption)}</p>')
 
 
 def _page(title: str, subtitle: str, chips: list[tuple[str, str]], sections: list[tuple[str, str, str]]) -> str:
@@ -470,101 +257,60 @@ def _page(title: str, subtitle: str, chips: list[tuple[str, str]], sections: lis
     )
 
 
-def write_html(path: Path, results: pd.DataFrame, floor: pd.DataFrame | None, config: dict, summary: Summary,
-               timing: pd.DataFrame, meshes_dir: Path | None = None, *, gallery_limit: int = GALLERY_LIMIT,
-               thumb_size: int = 256) -> Path:
-    """Write report.html for one run (see the module docstring)."""
-    config = config or {}
-    results = check_results(results)
-    floor = check_floor(floor)
+def write_html(path: Path, summary: Summary, timing: pd.DataFrame, context: dict, meshes_dir: Path | None = None,
+               *, gallery_limit: int = GALLERY_LIMIT, thumb_size: int = 256) -> Path:
+    """Write report.html for one run (see the module docstring); returns ``path``."""
+    results = summary.results
     colors = method_colors(summary.methods)
-    vmax = float(config.get("error_vmax") or DEFAULT_ERROR_VMAX)
-    items = protocol_items(config, results)
-    proto = "".join(f"<dt>{esc(k)}</dt><dd>{esc(v)}</dd>" for k, v in items)
-    proto_html = f'<dl class="proto">{proto}<dt>device</dt><dd>{esc(device_text(config, results))}</dd></dl>'
     n_jobs, n_failed = len(results), int((results["status"] != "ok").sum())
-
     t = summary.tables
-    summary_html = (_highlights(summary, colors) + table_html(t["mean"])
-                    + "".join(f'<p class="note">{esc(n)}</p>' for n in t["mean"].notes)
+    summary_html = (_highlights(summary, colors) + table_html(t["mean"]) + notes_html(t["mean"])
                     + f'<p class="note">{esc(summary.caption)} <a href="#protocol">Details</a>.</p>'
                     + '<details><summary>Median and standard deviation</summary>'
                     + f'<h4>{esc(t["median"].title)}</h4>' + table_html(t["median"])
                     + f'<h4>{esc(t["std"].title)}</h4>' + table_html(t["std"]) + "</details>")
-    plot, plot_note = safe_plot(per_shape_plot, results, floor, summary, colors)
-    per_shape = (f'<img class="plot" src="{plot}" alt="metric per shape per method">' if plot else plot_note)
-    shape_tables = "".join(f'<h4>{esc(tb.title)}</h4>' + table_html(tb, "compact") for k, tb in t.items() if k.startswith("shape-"))
-    if len(summary.shapes) > 40:
+    per_shape = plot_html(plots.per_shape_plot, results, summary.floor, summary, colors,
+                          alt="metric per shape per method")
+    shape_tables = "".join(f'<h4>{esc(tb.title)}</h4>' + table_html(tb, "compact")
+                           for k, tb in t.items() if k.startswith("shape-"))
+    if len(summary.shapes) > plots.MAX_SHAPE_ROWS:
         shape_tables = f"<details><summary>Per-shape tables ({len(summary.shapes)} shapes)</summary>{shape_tables}</details>"
-    per_shape += shape_tables
-    gallery = colorbar_html(vmax, config.get("grid")) + gallery_html(
-        results, floor, summary, meshes_dir, config, colors, gallery_limit, thumb_size, vmax)
-    cap = timing_caption(timing, config, results)
-    tplot, tplot_note = safe_plot(timing_plot, timing)
-    timing_html = ((f'<img class="plot" src="{tplot}" alt="timing per stage per method">' if tplot else tplot_note)
-                   + table_html(timing_table(timing, "mean_s", cap)) + f'<p class="note">{esc(cap)}</p>')
-    config_html = ('<details><summary>Full configuration (config.json)</summary><pre>'
-                   + esc(json.dumps(config, indent=2, sort_keys=True, default=_json_default)) + "</pre></details>")
+    gallery = colorbar_html(ERROR_VMAX, context["grid"]) + gallery_html(
+        summary, meshes_dir, colors, gallery_limit, thumb_size, ERROR_VMAX)
+    context_html = ('<details><summary>Run context</summary><pre>'
+                    + esc(dumps(context, indent=2)) + "</pre></details>")
     sections = [
         ("summary", "Summary", summary_html),
         ("gallery", "Gallery", gallery),
-        ("per-shape", "Per shape", per_shape),
+        ("per-shape", "Per shape", per_shape + shape_tables),
         ("validity", "Mesh validity", table_html(t["validity"])),
-        ("timing", "Timing", timing_html),
+        ("timing", "Timing", _timing_html(timing, context, results)),
         ("failed", f"Failed jobs ({n_failed})", _failed_html(summary)),
-        ("protocol", "Protocol", proto_html + config_html),
+        ("protocol", "Protocol", _protocol_html(context) + context_html),
     ]
-    chips = [(k, v) for k, v in items if k in ("dataset", "mode", "budget", "grid", "seeds", "metric preset")]
-    chips.append(("jobs", f"{n_jobs} ({n_failed} failed)"))
-    subtitle = " · ".join(str(x) for x in (
-        ", ".join(summary.methods), device_text(config, results),
-        config.get("created") or config.get("started") or "",
-        f"commit {str(config['git_commit'])[:10]}" if config.get("git_commit") else "") if x)
-    page = _page(f"salsbench report: {config.get('dataset') or 'run'}", subtitle, chips, sections)
+    chips = [(k, v) for k, v in protocol_items(context) if k in CHIPS] + [("jobs", f"{n_jobs} ({n_failed} failed)")]
+    commit = f"commit {str(context['git_commit'])[:10]}" if context["git_commit"] else ""
+    subtitle = " · ".join(x for x in (", ".join(summary.methods), device_text(context), commit) if x)
     path = Path(path)
-    path.write_text(page, encoding="utf-8")
+    path.write_text(_page(report_title(context, "report"), subtitle, chips, sections), encoding="utf-8")
     return path
 
 
-def write_comparison_html(path: Path, runs, tables: list[Table], timing: pd.DataFrame) -> Path:
-    """report.html for several runs side by side: the comparison tables, a grouped bar plot of each
-    key metric (method x run) and each run's timing."""
-    from reports.tables import build_summary
-
-    plt = _pyplot()
-    sections = []
-    body = "".join(table_html(tb) + "".join(f'<p class="note">{esc(n)}</p>' for n in tb.notes) for tb in tables)
-    summaries = [(run, build_summary(run.results, run.floor, run.config)) for run in runs]
-    specs = [s for s in summaries[0][1].specs if s.column in ("cd", "ecd", "ef1")]
-    methods = list(dict.fromkeys(m for _, s in summaries for m in s.methods))
-    if specs and methods:
-        fig, axes = plt.subplots(1, len(specs), figsize=(3.6 * len(specs) + 1, 2.8))
-        axes = np.atleast_1d(axes)
-        width = 0.8 / len(summaries)
-        for ax, spec in zip(axes, specs):
-            for k, (run, s) in enumerate(summaries):
-                vals = [s.stats["mean"].at[m, spec.column] if m in s.stats["mean"].index and spec.column in s.stats["mean"].columns
-                        else np.nan for m in methods]
-                ax.bar(np.arange(len(methods)) + (k - (len(summaries) - 1) / 2) * width, vals, width, label=run.label,
-                       color=PALETTE[k % len(PALETTE)])
-            ax.set_xticks(np.arange(len(methods)), methods)
-            ax.set_title(spec.header)
-            ax.grid(axis="x", visible=False)
-        axes[0].legend(frameon=False, fontsize=8)
-        fig.tight_layout()
-        body += f'<img class="plot" src="{figure_uri(fig)}" alt="metrics per method per run">'
-    sections.append(("summary", "Runs side by side", body))
-    for run, s in summaries:
-        proto = "".join(f"<dt>{esc(k)}</dt><dd>{esc(v)}</dd>" for k, v in protocol_items(run.config, check_results(run.results)))
-        sel = timing[timing["run"] == run.label].drop(columns="run")
-        cap = timing_caption(sel, run.config, check_results(run.results))
-        tplot, _ = safe_plot(timing_plot, sel)
-        content = (f'<dl class="proto">{proto}</dl>' + table_html(s.tables["mean"])
-                   + (f'<img class="plot" src="{tplot}" alt="timing">' if tplot else "")
-                   + table_html(timing_table(sel, "mean_s", cap)) + f'<p class="note">{esc(cap)}</p>'
-                   + f"<h3>Failed jobs</h3>{_failed_html(s)}")
-        sections.append((f"run-{len(sections)}", f"Run {run.label}", content))
-    page = _page("salsbench comparison", " · ".join(r.label for r in runs), [("runs", str(len(runs)))], sections)
+def write_comparison_html(path: Path, comparison) -> Path:
+    """report.html for several runs (a :class:`reports.compare.Comparison`): the side-by-side
+    tables, a grouped bar plot of each key metric (method x run), then per run its protocol, mean
+    table, timing and failed jobs."""
+    body = "".join(table_html(tb) + notes_html(tb) for tb in comparison.tables)
+    body += plot_html(plots.comparison_plot, comparison.runs, alt="metrics per method per run")
+    sections = [("summary", "Runs side by side", body)]
+    for i, run in enumerate(comparison.runs):
+        timing = comparison.timing[comparison.timing["run"] == run.label].drop(columns="run")
+        content = (_protocol_html(run.context) + table_html(run.summary.tables["mean"])
+                   + _timing_html(timing, run.context, run.summary.results)
+                   + f"<h3>Failed jobs</h3>{_failed_html(run.summary)}")
+        sections.append((f"run-{i + 1}", f"Run {run.label}", content))
+    labels = " · ".join(r.label for r in comparison.runs)
+    page = _page("salsbench comparison", labels, [("runs", str(len(comparison.runs)))], sections)
     path = Path(path)
     path.write_text(page, encoding="utf-8")
     return path

@@ -22,7 +22,7 @@ from PIL import Image
 
 import reports
 from reports.render import BACKGROUND, distances_to_mesh, error_colors, render_mesh, ERROR_STOPS
-from tests.test_reports_tables import CONFIG, make_results
+from tests.test_reports_tables import CONTEXT, make_results
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 needs_chromium = pytest.mark.skipif(
@@ -149,7 +149,7 @@ def report(tmp_path_factory):
     out = tmp_path_factory.mktemp("report")
     write_fake_meshes(out / "meshes")
     results, floor = make_results()
-    paths = reports.write_reports(results, floor, CONFIG, out, out / "meshes")
+    paths = reports.write_reports(results, floor, CONTEXT, out, out / "meshes")
     return paths, out
 
 
@@ -171,19 +171,21 @@ def test_write_reports_contract_and_static_self_containment(report):
 
 def test_missing_meshes_dir_and_unreadable_mesh(tmp_path):
     results, floor = make_results()
-    paths = reports.write_reports(results, floor, CONFIG, tmp_path / "a", None)
+    paths = reports.write_reports(results, floor, CONTEXT, tmp_path / "a", None)
     assert "No meshes directory" in paths["report.html"].read_text()
     meshes = tmp_path / "meshes"
     write_fake_meshes(meshes)
     (meshes / "cube" / "sals.ply").write_text("not a mesh")
     (meshes / "sphere" / "gt.ply").unlink()
-    page = reports.write_reports(results, floor, CONFIG, tmp_path / "b", meshes, gallery_limit=2)["report.html"].read_text()
+    page = reports.write_reports(results, floor, CONTEXT, tmp_path / "b", meshes, gallery_limit=2)["report.html"].read_text()
     assert "render failed" in page and "no GT mesh" in page and "Showing the first 2 of 3 shapes" in page
 
 
 def test_compare_runs_writes_every_file(tmp_path):
     results, floor = make_results()
-    paths = reports.compare_runs([("a", results, floor, CONFIG), ("b", results, floor, CONFIG)], tmp_path)
+    runs = [{"name": name, "results": results, "floor": floor, "context": CONTEXT, "meshes_dir": None}
+            for name in ("a", "b")]
+    paths = reports.compare_runs(runs, tmp_path)
     assert sorted(paths) == ["report.html", "summary.md", "summary.tex", "timing.csv", "timing.md"]
     assert "Runs side by side" in paths["report.html"].read_text()
 
@@ -235,3 +237,53 @@ def test_face_subset_keeps_a_seeded_subset_and_compacts_vertices():
     assert all(tuple(map(tuple, V2[f])) in originals for f in F2)
     assert np.array_equal(face_subset(V, F, 2)[1], F2)  # seeded
     assert face_subset(V, F, 10)[1] is not None and len(face_subset(V, F, 10)[1]) == 4
+
+
+# ---------------------------------------------------------------------------------------------
+# Names from the wild: no warnings, escaped, shown in full (issue 11, items 5, 12)
+# ---------------------------------------------------------------------------------------------
+
+NAMES = ("Ω-bracket", "部品", "emoji 🔧")
+
+
+def _renamed_run():
+    """The fake run with non-ASCII shape names and 'sdf' renamed to a method the registry does not
+    know, whose name would be mathtext for matplotlib."""
+    results, floor = make_results()
+    rename = dict(zip(("cube", "sphere", "cylinder"), NAMES))
+    results["shape"] = results["shape"].map(rename)
+    floor["shape"] = floor["shape"].map(rename)
+    results["method"] = results["method"].replace({"sdf": "old $x$"})
+    return results, floor, dict(CONTEXT, shapes=list(NAMES), methods=["sals", "old $x$"])
+
+
+def test_non_ascii_names_render_without_any_warning(tmp_path, recwarn):
+    results, floor, context = _renamed_run()
+    page = reports.write_reports(results, floor, context, tmp_path / "one")["report.html"].read_text()
+    runs = [{"name": n, "results": results, "floor": floor, "context": context, "meshes_dir": None}
+            for n in ("部品 run", "🔧")]
+    reports.compare_runs(runs, tmp_path / "two")
+    assert [str(w.message) for w in recwarn] == []  # no 'Glyph ... missing from font', no mathtext error
+    assert all(name in page for name in NAMES) and "old $x$" in page  # the tables show the names in full
+
+
+def test_plot_label_replaces_missing_glyphs_and_escapes_dollars():
+    from reports.plots import plot_label
+
+    assert plot_label("Ω-bracket") == "Ω-bracket"  # DejaVu Sans has Greek
+    assert plot_label("部品") == "??" and plot_label("emoji 🔧") == "emoji ?"
+    assert plot_label("a $x$") == r"a \$x\$"
+
+
+def test_html_summary_counts_empty_predictions(tmp_path):
+    results, floor = make_results()
+    results.loc[(results["shape"] == "cube") & (results["method"] == "sals") & (results["seed"] == 1),
+                ["cd", "nc", "ecd", "ef1", "f1_005", "f1_01", "empty_prediction"]] = [np.nan] * 3 + [0.0] * 3 + [1]
+    page = reports.write_reports(results, floor, CONTEXT, tmp_path)["report.html"].read_text()
+    summary = page[page.index('id="summary"'):page.index('id="gallery"')]
+    headers = re.findall(r"<th[^>]*>([^<]*)</th>", summary.split("</thead>")[0])
+    first_row = re.findall(r"<td[^>]*>([^<]*)</td>", summary.split("<tbody>")[1].split("</tr>")[0])
+    row = dict(zip(headers, first_row))
+    # sals CD x1e3 over the 5 non-empty jobs: (4 + 5 + 4 + 5 + 4) / 5 = 4.400
+    assert (row["method"], row["jobs"], row["empty"], row["CD ×1e3 ↓"]) == ("sals", "6", "1", "4.400")
+    assert "CD, NC: over non-empty predictions" in summary

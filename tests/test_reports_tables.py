@@ -1,6 +1,6 @@
 """Tables contract of reports: summary.md / summary.tex / timing.csv / timing.md from hand-made frames.
 
-The fake run: 3 shapes x 2 methods x 2 seeds. sals: cd = 0.004 (+0.001 for seed 1), ecd = 0.02,
+The fake run (CONTEXT): 3 shapes x 2 methods x 2 seeds, no empty prediction. sals: cd = 0.004 (+0.001 for seed 1), ecd = 0.02,
 ef1 = 0.6; sdf: cd = 0.008 (+0.001 for seed 1), ecd = 0.04, ef1 = 0.3, its 'cylinder' jobs fail and
 its 'sphere' seed-0 prediction has no edge points (ecd NaN, flag set, ef1 = 0). So by hand, in table
 units: sals CD mean = (4 + 5) / 2 = 4.500, sdf CD mean = 8.500, sals ECD 2.000, sdf ECD 4.000 over
@@ -15,22 +15,16 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from reports.tables import (
-    build_summary,
-    metric_specs,
-    tau_column,
-    tau_from_column,
-    timing_frame,
-    write_comparison_tables,
-    as_runs,
-    write_tables,
-)
+from reports.compare import build_comparison, write_comparison
+from reports.summary import build_summary, write_summary
+from reports.timing import timing_frame, write_timing
 
 SHAPES = ("cube", "sphere", "cylinder")
 METHODS = ("sals", "sdf")
-CONFIG = dict(dataset="builtin", mode="neural", budget="quick", grid=128, eval_points=None,
-              eval_points_effective=1_000_000, metric_preset="default", seeds=[0, 1], methods=list(METHODS),
-              shapes=list(SHAPES), device="cpu", cpu_model="Test CPU 3000", versions={"numpy": "2"})
+CONTEXT = dict(dataset="builtin", task="encode", mode="neural", budget="quick",
+               budget_values={"steps": 2000, "lr": 0.001}, grid=128, seeds=[0, 1], methods=list(METHODS),
+               shapes=list(SHAPES), metric_preset="default", eval_points=1_000_000, device="cpu",
+               cpu_model="Test CPU 3000", gpu=None, git_commit="0123456789abcdef")
 
 
 def make_results() -> tuple[pd.DataFrame, pd.DataFrame]:
@@ -47,7 +41,7 @@ def make_results() -> tuple[pd.DataFrame, pd.DataFrame]:
                     f1_005=0.6 - 0.1 * k, f1_01=0.95 - 0.05 * k,
                     ecd=np.nan if (failed or no_edges) else 0.02 * (k + 1),
                     ef1=np.nan if failed else (0.0 if no_edges else 0.6 - 0.3 * k),
-                    ecd_flag=no_edges, n_vertices=100 * (k + 1), n_faces=200 * (k + 1),
+                    ecd_flag=no_edges, empty_prediction=0, n_vertices=100 * (k + 1), n_faces=200 * (k + 1),
                     boundary_edges=2 * k, nonmanifold_edges=k, components=1 + k, watertight=(k == 0),
                     sample_s=0.5, label_s=1.0, fit_s=30.0 + 10 * k + seed, query_s=2.0, extract_s=1.5,
                     metrics_s=3.0, total_s=40.0 + 10 * k + seed, device="cpu",
@@ -56,19 +50,26 @@ def make_results() -> tuple[pd.DataFrame, pd.DataFrame]:
                     row.update(extract_edc_points_s=0.5, extract_qef_s=0.7, extract_faces_s=0.3)
                 rows.append(row)
     floor = pd.DataFrame([dict(shape=s, cd=0.0011, nc=0.999, f1_005=0.9, f1_01=0.99, ecd=0.005, ef1=0.9,
-                               ecd_flag=False, n_vertices=8, n_faces=12, boundary_edges=0, nonmanifold_edges=0,
+                               ecd_flag=False, empty_prediction=0, n_vertices=8, n_faces=12, boundary_edges=0, nonmanifold_edges=0,
                                components=1, watertight=True) for s in SHAPES])
     return pd.DataFrame(rows), floor
 
 
+def write_tables(results, floor, context, out) -> dict:
+    """summary.md/.tex and timing.csv/.md, as write_reports writes them (without report.html)."""
+    summary = build_summary(results, floor, context)
+    return {**write_summary(summary, context, out), **write_timing(summary.results, context, out)[0]}
+
+
 def md_tables(text: str) -> dict[str, list[list[str]]]:
-    """Markdown tables by their '## title': rows of stripped cells (header first, rule dropped)."""
+    """Markdown tables by their '## title': rows of stripped cells (header first, rule dropped);
+    cells split at unescaped pipes, kept escaped."""
     out, title, rows = {}, None, []
     for line in text.splitlines() + [""]:
         if line.startswith("## "):
             title, rows = line[3:].strip(), []
         elif line.startswith("|") and title:
-            cells = [c.strip() for c in line.strip().strip("|").split("|")]
+            cells = [c.strip() for c in re.split(r"(?<!\\)\|", line.strip()[1:-1])]
             if not all(re.fullmatch(r":?-+:?", c) for c in cells):
                 rows.append(cells)
         elif rows and title:
@@ -81,7 +82,7 @@ def md_tables(text: str) -> dict[str, list[list[str]]]:
 def written(tmp_path_factory):
     results, floor = make_results()
     out = tmp_path_factory.mktemp("tables")
-    return write_tables(results, floor, CONFIG, out), results, floor
+    return write_tables(results, floor, CONTEXT, out), results, floor
 
 
 def test_files_written(written):
@@ -195,22 +196,10 @@ def test_timing_csv_sums_and_means(written):
     assert rows["extraction: qef"] == ["0.70", "–"]
 
 
-def test_metric_specs_from_preset_and_from_columns():
-    cols = ["cd", "nc", "f1_003", "f1_005", "f1_01", "ecd", "ef1"]
-    ndc = metric_specs({"metric_preset": "ndc"}, cols)
-    assert [s.column for s in ndc] == ["cd", "nc", "f1_003", "ecd", "ef1"]
-    assert ndc[0].scale == 1e5 and ndc[0].header == "CD ×1e5 ↓" and ndc[2].name == "F1@0.003"
-    from_dict = metric_specs({"metric_preset": {"name": "x", "f1_thresholds": [0.01], "cd_scale": 1e4}}, cols)
-    assert [s.column for s in from_dict] == ["cd", "nc", "f1_01", "ecd", "ef1"] and from_dict[0].scale == 1e4
-    bare = metric_specs({}, ["nc", "f1_01", "f1_005", "ecd"])  # no preset: columns present, default units
-    assert [s.column for s in bare] == ["nc", "f1_005", "f1_01", "ecd"] and bare[-1].scale == 100
-    assert tau_from_column("f1_005") == 0.005 and tau_column(0.01) == "f1_01" and tau_column(0.003) == "f1_003"
-
-
 def test_ndc_preset_run_with_missing_columns(tmp_path):
     results, floor = make_results()
     results = results.drop(columns=["f1_005", "f1_01", "watertight", "components"]).assign(f1_003=0.5)
-    cfg = dict(CONFIG, metric_preset="ndc")
+    cfg = dict(CONTEXT, metric_preset="ndc")
     paths = write_tables(results, floor.drop(columns=["f1_005", "f1_01"]), cfg, tmp_path)
     mean = md_tables(paths["summary.md"].read_text())["Mean over shapes and seeds"]
     col = {h: i for i, h in enumerate(mean[0])}
@@ -218,23 +207,29 @@ def test_ndc_preset_run_with_missing_columns(tmp_path):
     assert mean[1][col["CD ×1e5 ↓"]] == "**450.000**"  # 4.5e-3 x 1e5
 
 
-def test_bad_frames_give_one_line_errors(tmp_path):
+def test_bad_frames_and_contexts_give_one_line_errors(tmp_path):
     results, floor = make_results()
     with pytest.raises(ValueError, match=r"^results frame lacks column\(s\) method$"):
-        build_summary(results.drop(columns=["method"]), floor, CONFIG)
+        build_summary(results.drop(columns=["method"]), floor, CONTEXT)
     with pytest.raises(ValueError, match="must be a pandas DataFrame"):
-        build_summary({"shape": []}, floor, CONFIG)
-    # no floor, no timing, everything failed: still writes every table
+        build_summary({"shape": []}, floor, CONTEXT)
+    with pytest.raises(ValueError, match=r"^context lacks key\(s\) eval_points, gpu$"):
+        build_summary(results, floor, {k: v for k, v in CONTEXT.items() if k not in ("eval_points", "gpu")})
+    with pytest.raises(ValueError, match=r"^unknown metric preset 'nope'; known: default, ndc$"):
+        build_summary(results, floor, dict(CONTEXT, metric_preset="nope"))
+    # no floor, no timing, no empty flag, everything failed: still writes every table
     dead = results.assign(status="failed", error="boom")[["shape", "method", "seed", "status", "error", "cd"]]
-    paths = write_tables(dead, None, {}, tmp_path)
+    paths = write_tables(dead, None, CONTEXT, tmp_path)
     mean = md_tables(paths["summary.md"].read_text())["Mean over shapes and seeds"]
-    assert [r[0] for r in mean[1:]] == ["sals", "sdf"] and mean[1][3] == "–"
+    col = {h: i for i, h in enumerate(mean[0])}
+    assert [r[0] for r in mean[1:]] == ["sals", "sdf"]
+    assert [(r[col["failed"]], r[col["empty"]], r[col["CD ×1e3 ↓"]]) for r in mean[1:]] == [("6", "–", "–")] * 2
     assert pd.read_csv(paths["timing.csv"])["stage"].tolist() == ["sum_of_stages", "sum_of_stages"]
 
 
 def test_timing_frame_orders_unknown_stages_before_metrics():
     results, _ = make_results()
-    t = timing_frame(results.assign(load_s=0.25, mystery_s=1.0), CONFIG)
+    t = timing_frame(results.assign(load_s=0.25, mystery_s=1.0), CONTEXT)
     stages = t[t["method"] == "sdf"]["stage"].tolist()
     assert stages == ["load_s", "sample_s", "label_s", "fit_s", "query_s", "extract_s", "mystery_s", "metrics_s",
                       "sum_of_stages", "total_s"]
@@ -243,12 +238,73 @@ def test_timing_frame_orders_unknown_stages_before_metrics():
 def test_compare_runs_side_by_side(tmp_path):
     results, floor = make_results()
     better = results.assign(cd=results["cd"] / 2)
-    runs = as_runs([("base", results, floor, CONFIG), {"name": "half", "results": better, "floor": floor,
-                                                       "config": CONFIG}])
-    paths, tables, timing = write_comparison_tables(runs, tmp_path)
+    comparison = build_comparison([
+        {"name": "base", "results": results, "floor": floor, "context": CONTEXT, "meshes_dir": None},
+        {"name": "half", "results": better, "floor": floor, "context": CONTEXT, "meshes_dir": None}])
+    paths = write_comparison(comparison, tmp_path)
     table = md_tables(paths["summary.md"].read_text())["Runs side by side: mean over shapes and seeds"]
     col = {h: i for i, h in enumerate(table[0])}
-    rows = [(r[0], r[1], r[col["CD ×1e3 ↓"]]) for r in table[1:]]
-    assert rows == [("base", "sals", "4.500"), ("base", "sdf", "8.500"), ("base", "floor (GT vs resample)", "1.100"),
-                    ("half", "sals", "**2.250**"), ("half", "sdf", "4.250"), ("half", "floor (GT vs resample)", "1.100")]
-    assert set(timing["run"]) == {"base", "half"} and paths["timing.md"].is_file() and paths["summary.tex"].is_file()
+    rows = [(r[0], r[1], r[col["CD ×1e3 ↓"]], r[col["ECD NaN"]]) for r in table[1:]]
+    assert rows == [("base", "sals", "4.500", "0"), ("base", "sdf", "8.500", "1"),
+                    ("base", "floor (GT vs resample)", "1.100", "0"),
+                    ("half", "sals", "**2.250**", "0"), ("half", "sdf", "4.250", "1"),
+                    ("half", "floor (GT vs resample)", "1.100", "0")]
+    # the same builder as one run's mean table: the same columns after the 'run' column
+    single = md_tables(write_tables(results, floor, CONTEXT, tmp_path / "one")["summary.md"].read_text())
+    assert table[0][1:] == single["Mean over shapes and seeds"][0]
+    timing = pd.read_csv(paths["timing.csv"])
+    assert list(timing["run"].unique()) == ["base", "half"] and timing.columns[0] == "run"
+    assert paths["timing.md"].is_file() and paths["summary.tex"].is_file()
+
+
+def test_compare_runs_makes_repeated_names_unique():
+    results, floor = make_results()
+    run = {"name": "a", "results": results, "floor": floor, "context": CONTEXT, "meshes_dir": None}
+    assert [r.label for r in build_comparison([run, run, run]).runs] == ["a", "a (2)", "a (3)"]
+    with pytest.raises(ValueError, match=r"^run 1 lacks key\(s\) context$"):
+        build_comparison([{k: v for k, v in run.items() if k != "context"}])
+
+
+# ---------------------------------------------------------------------------------------------
+# Empty predictions (issue 11, item 5) and hostile names in Markdown (item 14)
+# ---------------------------------------------------------------------------------------------
+
+
+def one_method_run(cd, f1, empty, ecd, shapes=("cube", "sphere", "cylinder")) -> tuple[pd.DataFrame, dict]:
+    """One method 'sals', one seed, a job per shape with the given raw values."""
+    rows = [dict(shape=s, method="sals", seed=0, status="ok", error=None, cd=c, nc=np.nan if e else 0.9,
+                 f1_005=f, f1_01=f, ecd=d, ef1=0.0 if e else 0.5, ecd_flag=bool(e), empty_prediction=e)
+            for s, c, f, e, d in zip(shapes, cd, f1, empty, ecd)]
+    return pd.DataFrame(rows), dict(CONTEXT, methods=["sals"], shapes=list(shapes), seeds=[0])
+
+
+def test_empty_prediction_is_counted_and_cd_mean_is_over_the_others(tmp_path):
+    # cube CD 0.002, sphere CD 0.004, cylinder empty (CD NaN, F1 0): mean CD x1e3 = (2 + 4) / 2 = 3.000,
+    # mean F1@0.01 = (0.9 + 0.6 + 0) / 3 = 0.500, 1 empty, and its ECD is NaN too.
+    results, context = one_method_run(cd=[0.002, 0.004, np.nan], f1=[0.9, 0.6, 0.0], empty=[0, 0, 1],
+                                      ecd=[0.02, 0.04, np.nan])
+    paths = write_tables(results, None, context, tmp_path)
+    text = paths["summary.md"].read_text()
+    mean = md_tables(text)["Mean over shapes and seeds"]
+    col = {h: i for i, h in enumerate(mean[0])}
+    row = mean[1]
+    assert (row[col["jobs"]], row[col["failed"]], row[col["empty"]]) == ("3", "0", "1")
+    assert row[col["CD ×1e3 ↓"]] == "**3.000**" and row[col["F1@0.01 ↑"]] == "**0.500**"
+    assert row[col["ECD ×1e2 ↓"]] == "**3.000**" and row[col["ECD NaN"]] == "1"
+    assert "CD, NC: over non-empty predictions" in text and "an empty prediction scoring 0" in text
+    per_shape = md_tables(text)["Per shape: CD ×1e3 ↓ (mean over seeds)"]
+    assert per_shape[3] == ["cylinder", "empty"]
+    tex = paths["summary.tex"].read_text()
+    assert "CD, NC: over non-empty predictions" in tex  # in the LaTeX caption too
+
+
+def test_hostile_shape_name_is_one_escaped_markdown_cell(tmp_path):
+    name = "a|b<script>"
+    results, context = one_method_run(cd=[0.002, 0.004], f1=[0.9, 0.6], empty=[0, 0], ecd=[0.02, 0.04],
+                                      shapes=(name, "cube"))
+    results.loc[1, ["status", "error"]] = ["failed", "ValueError: bad | <b>mesh</b> *x*"]
+    text = write_tables(results, None, context, tmp_path)["summary.md"].read_text()
+    assert "<script>" not in text and "<b>" not in text
+    per_shape = md_tables(text)["Per shape: CD ×1e3 ↓ (mean over seeds)"]
+    assert per_shape[1:] == [[r"a\|b\<script\>", "**2.000**"], ["cube", "failed"]]  # one row, two cells each
+    assert r"- cube / sals / seed 0: ValueError: bad \| \<b\>mesh\</b\> \*x\*" in text

@@ -1,0 +1,197 @@
+"""The paper tables of one run, computed once (:func:`build_summary`) and written as summary.md / summary.tex.
+
+Tables: mean, median and std per method (:func:`reports.statistics.statistic_table`; the caption
+says what each mean is over), mesh validity of the predictions (the schema's validity columns), and
+per shape the mean over seeds of CD and ECD. Failed jobs are listed with their error text. Every
+cell carrying user text (shape names, method names, errors) is escaped by each writer.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from benchmark.run.schema import columns as schema_columns
+from reports.frames import as_bool, check_floor, check_results, numeric, ok_jobs, one_line
+from reports.protocol import check_context, headline_metrics, protocol_caption, report_title
+from reports.statistics import AGGREGATION, Statistics, method_statistics, statistic_table
+from reports.style import method_order
+from reports.table import (
+    DASH,
+    Cell,
+    Table,
+    best_flags,
+    fmt,
+    md_escape,
+    metric_header,
+    table_latex,
+    table_markdown_section,
+    tex_escape,
+)
+
+#: Metrics that get a per-shape table (the distance metrics).
+PER_SHAPE = ("cd", "ecd")
+FLOOR_NOTE = ("Floor: GT against an independent resample of itself (the protocol's sampling noise), a reference "
+              "row. Best method per column in bold.")
+
+
+@dataclass
+class Summary:
+    """Everything the writers need, computed once: the checked frames, the metrics, the row and
+    column orders, the statistics and the tables."""
+
+    results: pd.DataFrame
+    floor: pd.DataFrame | None
+    metrics: list
+    methods: list[str]
+    shapes: list[str]
+    stats: Statistics
+    tables: dict[str, Table]
+    caption: str
+    failed: pd.DataFrame
+
+
+def shape_order(results: pd.DataFrame, floor: pd.DataFrame | None, preferred) -> list[str]:
+    """The shapes present, in the dataset's order (``preferred``), then any others as they appear."""
+    present = list(dict.fromkeys(list(results["shape"]) + (list(floor["shape"]) if floor is not None
+                                                           and "shape" in floor.columns else [])))
+    first = [s for s in preferred if s in present]
+    return first + [s for s in present if s not in first]
+
+
+def validity_table(results: pd.DataFrame, floor: pd.DataFrame | None, methods: list[str], caption: str) -> Table:
+    """Mesh validity of the predictions per method, mean over successful jobs (GT row from the floor).
+
+    Columns are the result schema's validity columns present (``benchmark.run.schema``); a column
+    whose label ends in '%' is a flag, shown as the percentage of jobs where it holds.
+    """
+    present = [c for c in schema_columns("validity") if c.name in results.columns]
+    headers = ["method", "jobs ok"] + [c.label for c in present]
+    table = Table("validity", "Mesh validity of the predictions (mean over successful jobs)", caption,
+                  headers, [tex_escape(h) for h in headers], ["l"] + ["r"] * (len(headers) - 1))
+
+    def row(frame: pd.DataFrame) -> list[Cell]:
+        cells = []
+        for c in present:
+            values = numeric(frame, c.name).dropna()
+            if not len(values):
+                cells.append(Cell(DASH))
+            elif c.label.endswith("%"):
+                cells.append(Cell(fmt(100.0 * as_bool(values).mean(), 0)))
+            else:
+                cells.append(Cell(fmt(values.mean(), 1)))
+        return cells
+
+    ok = ok_jobs(results)
+    for m in methods:
+        sel = ok[ok["method"] == m]
+        table.add([Cell(m), Cell(str(len(sel)))] + row(sel))
+    if floor is not None and any(c.name in floor.columns for c in present):
+        table.add([Cell("GT"), Cell(str(len(floor)))] + row(floor), "floor")
+    return table
+
+
+def per_shape_table(results: pd.DataFrame, floor: pd.DataFrame | None, metric, methods: list[str],
+                    shapes: list[str], caption: str) -> Table:
+    """Shapes x methods, the mean over the seeds of successful jobs of one metric.
+
+    A cell is 'failed' where every seed failed (hover text: the error), 'empty' where every
+    successful seed predicted an empty mesh, 'NaN' where the metric is otherwise undefined (no
+    predicted edge points), a dash where the method has no job. Best per row in bold; the floor
+    column is a reference.
+    """
+    has_floor = floor is not None and "shape" in floor.columns and metric.column in floor.columns
+    headers = ["shape"] + methods + (["floor"] if has_floor else [])
+    table = Table(f"shape-{metric.column}", f"Per shape: {metric_header(metric)} (mean over seeds)", caption,
+                  headers, ["shape"] + [tex_escape(m) for m in methods] + (["floor"] if has_floor else []),
+                  ["l"] + ["r"] * (len(headers) - 1))
+    key = [results["shape"], results["method"]]
+    ok = ok_jobs(results)
+    ok_key = [ok["shape"], ok["method"]]
+    n_jobs = results.groupby(key).size()
+    n_ok = ok.groupby(ok_key).size()
+    mean = numeric(ok, metric.column).groupby(ok_key).mean() * metric.scale
+    all_empty = (as_bool(ok["empty_prediction"]).groupby(ok_key).all() if "empty_prediction" in ok.columns
+                 else pd.Series(dtype=bool))
+    bad = results[results["status"] != "ok"]
+    error = bad["error"].groupby([bad["shape"], bad["method"]]).first()  # first non-null per group
+    floor_mean = (numeric(floor, metric.column).groupby(floor["shape"]).mean() * metric.scale
+                  if has_floor else pd.Series(dtype=float))
+    for shape in shapes:
+        values = [mean.get((shape, m), np.nan) for m in methods]
+        row = [Cell(shape)]
+        for m, v, bold in zip(methods, values, best_flags(values, metric.lower_is_better)):
+            k = (shape, m)
+            if k not in n_jobs.index:
+                row.append(Cell(DASH))
+            elif k not in n_ok.index:
+                row.append(Cell("failed", title=one_line(error.get(k))))
+            elif np.isfinite(v):
+                row.append(Cell(fmt(v), bold))
+            else:
+                row.append(Cell("empty" if all_empty.get(k, False) else "NaN"))
+        if has_floor:
+            row.append(Cell(fmt(floor_mean.get(shape, np.nan))))
+        table.add(row)
+    return table
+
+
+def failed_jobs(results: pd.DataFrame) -> pd.DataFrame:
+    """shape, method, seed, error of every job whose status is not 'ok'."""
+    bad = results[results["status"] != "ok"]
+    return bad[["shape", "method", "seed", "error"]].reset_index(drop=True)
+
+
+def build_summary(results: pd.DataFrame, floor: pd.DataFrame | None, context: dict) -> Summary:
+    """Check the frames and the context, compute the statistics and build every table of one run."""
+    context = check_context(context)
+    results = check_results(results)
+    floor = check_floor(floor)
+    metrics = headline_metrics(context, results.columns)
+    methods = method_order(results["method"], context["methods"])
+    shapes = shape_order(results, floor, context["shapes"])
+    stats = method_statistics(results, floor, metrics, methods)
+    caption = protocol_caption(context)
+    stat_caption = f"{caption} {AGGREGATION}"
+    tables = {stat: statistic_table(stats, metrics, stat, key=stat, caption=stat_caption)
+              for stat in ("mean", "median", "std")}
+    tables["validity"] = validity_table(results, floor, methods, caption)
+    tables["mean"].notes += [AGGREGATION, FLOOR_NOTE]
+    tables["std"].notes.append("Sample standard deviation (ddof = 1) over successful jobs; – with fewer than 2.")
+    for m in metrics:
+        if m.column in PER_SHAPE:
+            tables[f"shape-{m.column}"] = per_shape_table(results, floor, m, methods, shapes, caption)
+    return Summary(results, floor, metrics, methods, shapes, stats, tables, caption, failed_jobs(results))
+
+
+def summary_markdown(summary: Summary, title: str) -> str:
+    """summary.md: the protocol, every table with its notes, the failed jobs."""
+    parts = [f"# {md_escape(title)}", "", md_escape(summary.caption), ""]
+    for table in summary.tables.values():
+        parts += table_markdown_section(table)
+    if len(summary.failed):
+        parts += ["## Failed jobs", ""]
+        parts += [f"- {md_escape(r.shape)} / {md_escape(r.method)} / seed {r.seed}: {md_escape(one_line(r.error))}"
+                  for r in summary.failed.itertuples()]
+        parts.append("")
+    return "\n".join(parts)
+
+
+def summary_latex(summary: Summary, title: str) -> str:
+    """summary.tex: one booktabs float per table."""
+    head = [f"% {one_line(title)}: generated by salsbench (reports.summary). Needs \\usepackage{{booktabs}}.", ""]
+    return "\n".join(head) + "\n".join(table_latex(t) for t in summary.tables.values())
+
+
+def write_summary(summary: Summary, context: dict, out_dir: Path) -> dict[str, Path]:
+    """summary.md and summary.tex in ``out_dir``; returns {name: path}."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    title = report_title(context)
+    paths = {"summary.md": out_dir / "summary.md", "summary.tex": out_dir / "summary.tex"}
+    paths["summary.md"].write_text(summary_markdown(summary, title), encoding="utf-8")
+    paths["summary.tex"].write_text(summary_latex(summary, title), encoding="utf-8")
+    return paths
