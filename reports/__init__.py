@@ -25,22 +25,22 @@ from pathlib import Path
 
 import pandas as pd
 
+from reports.compare import build_comparison, write_comparison
+from reports.html import GALLERY_LIMIT, write_comparison_html, write_html
 from reports.render import render_mesh
+from reports.summary import build_summary, write_summary
+from reports.timing import write_timing
 
 __all__ = ["write_reports", "compare_runs", "render_mesh"]
 
 
 def write_reports(results: pd.DataFrame, floor: pd.DataFrame | None, context: dict, out_dir: Path,
-                  meshes_dir: Path | None = None, *, gallery_limit: int = 24) -> dict[str, Path]:
+                  meshes_dir: Path | None = None, *, gallery_limit: int = GALLERY_LIMIT) -> dict[str, Path]:
     """Write the run's tables and report into ``out_dir``; returns {file name: path}.
 
     Tables first (cheap), then report.html, which renders thumbnails from
     ``meshes_dir/<shape>/gt.ply`` and ``<method>.ply`` for the first ``gallery_limit`` shapes.
     """
-    from reports.html import write_html
-    from reports.summary import build_summary, write_summary
-    from reports.timing import write_timing
-
     out_dir = Path(out_dir)
     summary = build_summary(results, floor, context)
     paths = write_summary(summary, context, out_dir)
@@ -54,9 +54,6 @@ def write_reports(results: pd.DataFrame, floor: pd.DataFrame | None, context: di
 
 def compare_runs(runs: list[dict], out_dir: Path) -> dict[str, Path]:
     """Write summary.md/.tex, timing.csv/.md and report.html comparing several runs in ``out_dir``."""
-    from reports.compare import build_comparison, write_comparison
-    from reports.html import write_comparison_html
-
     comparison = build_comparison(runs)
     paths = write_comparison(comparison, Path(out_dir))
     paths["report.html"] = write_comparison_html(Path(out_dir) / "report.html", comparison)

@@ -10,7 +10,7 @@ canonical frame ([-1, 1]^3, SPEC section 1). The framing is fixed by a bounding 
 renders of the GT and of every method of one shape line up when they are given the GT's box.
 
 Shading: flat (one normal per face), two-sided: intensity = ambient + sum_k kd_k |n . l_k| + specular
-|n . h|^p, so unoriented meshes (UDF / SALS output, flipped faces) shade exactly like oriented ones.
+|n . h|^p, so unoriented meshes (from unsigned fields, flipped faces) shade exactly like oriented ones.
 Silhouettes and depth jumps are darkened for legibility. Colours may be uniform, per vertex
 (interpolated barycentrically) or per face.
 """

@@ -69,11 +69,6 @@ class Table:
         self.rows.append(cells)
         self.row_kinds.append(kind)
 
-    def column(self, header: str) -> list[str]:
-        """Plain texts of one column."""
-        k = self.headers.index(header)
-        return [r[k].text for r in self.rows]
-
 
 def fmt(value, digits: int = DIGITS) -> str:
     """Fixed-point text with ``digits`` decimals; NaN, inf and None -> an en dash."""
