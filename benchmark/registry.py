@@ -89,9 +89,17 @@ class Registry(Generic[T]):
             raise self.unknown(name)
         return self._entries[name]
 
+    __getitem__ = get
+
     def __contains__(self, name: object) -> bool:
         self._load()
         return name in self._entries
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.names())
+
+    def __len__(self) -> int:
+        return len(self.names())
 
     def items(self) -> list[tuple[str, T]]:
         return [(n, self._entries[n]) for n in self.names()]

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from benchmark.registry import Registry
 from datasets.io import MeshError, Shape
 
 #: The dataset a run uses when none is named.
@@ -88,18 +89,15 @@ class Dataset:
         return DatasetError(f"dataset '{self.name}' has no shape '{name}' ({len(names)} shapes: {shown})")
 
 
-_REGISTRY: dict[str, Callable[..., Dataset]] = {}
+#: The dataset registry: name -> Dataset subclass (or factory returning one).
+DATASETS: Registry[Callable[..., Dataset]] = Registry("dataset", error=DatasetError)
 
 
 def register_dataset(name: str) -> Callable:
     """Decorator: make a :class:`Dataset` subclass (or a factory returning one) available as ``name``."""
-    if not name or not isinstance(name, str):
-        raise ValueError("a dataset needs a non-empty string name")
 
     def decorate(factory):
-        if name in _REGISTRY and _REGISTRY[name] is not factory:
-            raise ValueError(f"dataset name '{name}' is registered twice")
-        _REGISTRY[name] = factory
+        DATASETS.register(name, factory)
         if isinstance(factory, type) and not factory.name:
             factory.name = name
         return factory
@@ -108,8 +106,8 @@ def register_dataset(name: str) -> Callable:
 
 
 def available_datasets() -> list[str]:
-    """Registered dataset names, sorted."""
-    return sorted(_REGISTRY)
+    """Registered dataset names, in registration order."""
+    return DATASETS.names()
 
 
 def get_dataset(name: str | None = None, **options: Any) -> Dataset:
@@ -119,9 +117,7 @@ def get_dataset(name: str | None = None, **options: Any) -> Dataset:
     known ones; a missing data directory or list file raises :class:`DatasetNotFoundError`.
     """
     name = DEFAULT_DATASET if name is None else name
-    if name not in _REGISTRY:
-        raise DatasetError(f"unknown dataset '{name}'; known datasets: {', '.join(available_datasets())}")
-    factory = _REGISTRY[name]
+    factory = DATASETS.get(name)
     params = inspect.signature(factory).parameters
     if not any(p.kind is p.VAR_KEYWORD for p in params.values()):
         accepted = [k for k, p in params.items() if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]

@@ -2,13 +2,18 @@
 
 A *method* is a representation + surface extraction: what the network predicts (its field), the
 exact field it learns from (computed from the mesh), its loss and its extractor. Each method lives in
-one file under ``methods/`` and declares itself with :func:`register_method`; the runner only ever
+one file under ``methods/`` and declares itself with :func:`register_method`; the run layer only ever
 calls :func:`get_method` and the interface below, so adding a method is adding one file.
 
 Data flow (one way): ``Shape`` -> shared ``Samples`` (benchmark.sampler) -> ``Method.training_targets``
 (from ``benchmark.fields.ExactFields``) -> shared fitting loop (methods.fitting) -> ``Method.neural_grid``
 or ``Method.oracle_grid`` (the field on the grid the extractor needs) -> ``Method.extract`` ->
-``Extraction`` (mesh in the canonical frame + stage timings).
+``Extraction`` (mesh in the canonical frame).
+
+Timing: the job times the stages ``query`` (around ``oracle_grid``/``neural_grid``) and ``extract``
+(around ``extract``); inside them a method names its sub-steps with :func:`benchmark.timing.stage`
+(``with stage("normals"):`` -> ``query_normals_s``) or :func:`benchmark.timing.record` for durations
+an extractor returns. Methods never write ``perf_counter`` pairs.
 """
 
 from __future__ import annotations
@@ -20,18 +25,17 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from benchmark.registry import Registry
+from methods.params import Param, ParamError
+
 
 @dataclass
 class Extraction:
-    """A mesh extracted by a method, canonical frame, plus per-stage wall-clock seconds.
-
-    ``timings`` keys end in ``_s``; ``query_s`` is the time spent evaluating the field (network or
-    exact) on the grid; extraction steps are named ``extract_<step>_s`` (e.g. ``extract_qef_s``).
-    """
+    """A mesh extracted by a method, canonical frame, plus scalar facts about the extraction
+    (e.g. the number of intersected edges) recorded with the job."""
 
     vertices: np.ndarray
     faces: np.ndarray
-    timings: dict[str, float] = field(default_factory=dict)
     info: dict[str, Any] = field(default_factory=dict)
 
 
@@ -45,9 +49,12 @@ class Method:
     input_kind : ``'points'`` (network input x, 3 values) or ``'segments'`` (u, v: 6 values).
     output_dim : number of network outputs.
     extractor : name of the extraction algorithm, for tables (e.g. ``'marching cubes'``, ``'E-DC'``).
-    default_params : extractor parameters and their defaults; users override any of them.
+    parameters : the extractor parameters, ``{name: Param(default, help, bounds...)}``; users override
+        any of them (``--method-param NAME.PARAM=VALUE``), parsed and checked by :class:`Param`.
     loss_needs_input_grad : the loss differentiates the network w.r.t. its inputs (the fitting loop
         then sets ``requires_grad`` on each batch's inputs before the forward pass).
+    display_order : position in tables, plots and the default ``--methods`` list (low first).
+    color : hex colour of the method in the report's plots.
     """
 
     name: ClassVar[str] = ""
@@ -55,16 +62,23 @@ class Method:
     input_kind: ClassVar[str] = "points"
     output_dim: ClassVar[int] = 1
     extractor: ClassVar[str] = ""
-    default_params: ClassVar[dict[str, Any]] = {}
+    parameters: ClassVar[dict[str, Param]] = {}
     loss_needs_input_grad: ClassVar[bool] = False
+    display_order: ClassVar[int] = 100
+    color: ClassVar[str] = "#7f7f7f"
 
     def __init__(self, **params: Any):
-        unknown = set(params) - set(self.default_params)
+        unknown = sorted(set(params) - set(self.parameters))
         if unknown:
-            raise ValueError(
-                f"method '{self.name}' has no parameter(s) {sorted(unknown)}; known: {sorted(self.default_params)}"
-            )
-        self.params = {**self.default_params, **params}
+            raise ParamError(f"method '{self.name}' has no parameter(s) {', '.join(unknown)}; "
+                             f"known: {', '.join(sorted(self.parameters)) or 'none'}")
+        self.params = {k: p.default for k, p in self.parameters.items()}
+        for key, value in params.items():
+            self.params[key] = self.parameters[key].parse(value, f"{self.name}.{key}")
+
+    @classmethod
+    def default_params(cls) -> dict[str, Any]:
+        return {k: p.default for k, p in cls.parameters.items()}
 
     @property
     def input_dim(self) -> int:
@@ -86,57 +100,50 @@ class Method:
         raise NotImplementedError
 
     # -- extraction ---------------------------------------------------------------------------
-    def oracle_grid(self, fields, N: int, cache=None) -> tuple[Any, dict[str, float]]:
-        """The exact field on the N^3 grid, as :meth:`extract` consumes it, and query timings."""
+    def oracle_grid(self, fields, N: int, cache) -> tuple[Any, dict[str, Any]]:
+        """The exact field on the N^3 grid, as :meth:`extract` consumes it, and scalar facts.
+
+        ``cache`` is a :class:`benchmark.field_cache.FieldCache` (its directory may be None: off)."""
         raise NotImplementedError
 
-    def neural_grid(self, model, N: int, device) -> tuple[Any, dict[str, float]]:
-        """The fitted network's field on the N^3 grid, as :meth:`extract` consumes it, and timings."""
+    def neural_grid(self, model, N: int, device) -> tuple[Any, dict[str, Any]]:
+        """The fitted network's field on the N^3 grid, as :meth:`extract` consumes it, and scalar
+        facts (e.g. ``query_fraction``, the share of the dense queries evaluated)."""
         raise NotImplementedError
 
-    def extract(self, grid_field, N: int, query=None) -> Extraction:
-        """Turn the grid field into a mesh (canonical frame). ``query`` optionally evaluates the
-        underlying continuous field at arbitrary points (for extractors that re-check vertices)."""
+    def extract(self, grid_field, N: int) -> Extraction:
+        """Turn the grid field into a mesh (canonical frame)."""
         raise NotImplementedError
 
     def describe(self) -> dict[str, Any]:
         return {"name": self.name, "extractor": self.extractor, "input": self.input_kind, "params": dict(self.params)}
 
 
-_REGISTRY: dict[str, type[Method]] = {}
-_LOADED = False
+def _import_method_modules() -> None:
+    """Import every module of the ``methods`` package once, so each file registers itself."""
+    import methods
+
+    for info in pkgutil.iter_modules(methods.__path__):
+        importlib.import_module(f"methods.{info.name}")
+
+
+#: The method registry: name -> Method subclass, listed in display order.
+METHODS: Registry[type[Method]] = Registry("method", loader=_import_method_modules,
+                                           order=lambda cls: (cls.display_order, cls.name))
 
 
 def register_method(cls: type[Method]) -> type[Method]:
     """Class decorator: make a :class:`Method` subclass available under ``cls.name``."""
     if not cls.name:
         raise ValueError(f"{cls.__name__} must set a non-empty 'name'")
-    if cls.name in _REGISTRY and _REGISTRY[cls.name] is not cls:
-        raise ValueError(f"method name '{cls.name}' is registered twice ({_REGISTRY[cls.name].__name__}, {cls.__name__})")
-    _REGISTRY[cls.name] = cls
-    return cls
-
-
-def _load_all() -> None:
-    """Import every module of the ``methods`` package once, so each file registers itself."""
-    global _LOADED
-    if _LOADED:
-        return
-    import methods
-
-    for info in pkgutil.iter_modules(methods.__path__):
-        importlib.import_module(f"methods.{info.name}")
-    _LOADED = True
+    return METHODS.register(cls.name, cls)
 
 
 def available_methods() -> list[str]:
-    _load_all()
-    return sorted(_REGISTRY)
+    """Registered method names in display order."""
+    return METHODS.names()
 
 
 def get_method(name: str, **params: Any) -> Method:
-    """Instantiate a registered method; unknown names raise one line listing the known ones."""
-    _load_all()
-    if name not in _REGISTRY:
-        raise ValueError(f"unknown method '{name}'; known methods: {', '.join(sorted(_REGISTRY))}")
-    return _REGISTRY[name](**params)
+    """Instantiate a registered method with checked parameters (unknown names list the known ones)."""
+    return METHODS.get(name)(**params)

@@ -12,8 +12,6 @@ upsampling of the coarse logits.
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 from scipy.special import expit
 import torch
@@ -21,6 +19,7 @@ import torch.nn.functional as F
 
 from methods.base import Extraction, Method, register_method
 from methods.marching_cubes import marching_cubes_grid
+from methods.params import Param
 from methods import query
 
 
@@ -31,7 +30,14 @@ class BOFMethod(Method):
     input_kind = "points"
     output_dim = 1
     extractor = "marching cubes"
-    default_params = {"level": 0.5, "near_eps": 0.01, "stride": query.DEFAULT_STRIDE}
+    display_order = 10
+    color = "#29a37a"
+    parameters = {
+        "level": Param(0.5, "occupancy probability of the extracted level set", gt=0, lt=1),
+        "near_eps": Param(0.01, "blocks with a corner probability in (eps, 1 - eps) are queried finely",
+                          gt=0, lt=0.5),
+        "stride": Param(query.DEFAULT_STRIDE, "coarse stride of the sparse query", ge=1),
+    }
 
     def training_targets(self, fields, samples) -> dict[str, np.ndarray]:
         return {"occupancy": fields.occupancy(samples.points).astype(np.float32)}
@@ -39,23 +45,17 @@ class BOFMethod(Method):
     def loss(self, prediction, targets, inputs=None, model=None):
         return F.binary_cross_entropy_with_logits(prediction[:, 0], targets["occupancy"])
 
-    def oracle_grid(self, fields, N, cache=None):
-        from benchmark.fields import cached_grid_fields
-
-        t = time.perf_counter()
-        volume = cached_grid_fields(fields, N, "occupancy", cache_dir=cache).astype(np.float32)
-        return volume, {"query_s": time.perf_counter() - t}
+    def oracle_grid(self, fields, N, cache):
+        return cache.get(fields, N, "occupancy").astype(np.float32), {}
 
     def neural_grid(self, model, N, device=None):
-        t = time.perf_counter()
         level = float(np.log(self.params["level"] / (1.0 - self.params["level"])))  # logit of the level
         eps = self.params["near_eps"]
         near = query.near_level(level, float(np.log((1.0 - eps) / eps)))
         logits, _, info = query.sparse_grid_points(model, N, near, device, stride=self.params["stride"])
         prob = expit(logits[..., 0].astype(np.float64))
-        return prob.astype(np.float32), {"query_s": time.perf_counter() - t, "query_fraction": info.fraction}
+        return prob.astype(np.float32), {"query_fraction": info.fraction}
 
-    def extract(self, grid_field, N, query=None) -> Extraction:
-        t = time.perf_counter()
+    def extract(self, grid_field, N) -> Extraction:
         V, Fc = marching_cubes_grid(np.asarray(grid_field), level=self.params["level"], inside="high")
-        return Extraction(V, Fc, {"extract_mc_s": time.perf_counter() - t})
+        return Extraction(V, Fc)

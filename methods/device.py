@@ -1,4 +1,4 @@
-"""The torch device, seeding and timing helpers shared by fitting and querying.
+"""The torch device and seeding helpers shared by fitting and querying.
 
 The device is chosen once per process: ``SALSBENCH_DEVICE`` (e.g. ``cpu``, ``cuda``, ``cuda:1``) when
 set, else CUDA when available, else the CPU. On the CPU the fitting is bit-for-bit deterministic for
@@ -10,11 +10,8 @@ runs are seeded the same way but may differ in the last bits between runs.
 from __future__ import annotations
 
 import os
-import random
-import time
 from functools import lru_cache
 
-import numpy as np
 import torch
 
 #: Environment variable that overrides the automatic device choice.
@@ -49,14 +46,12 @@ def describe_device(device: torch.device | str | None = None) -> str:
     return f"{device.type} ({torch.get_num_threads()} threads)"
 
 
-def seed_everything(seed: int, device: torch.device | str | None = None) -> torch.Generator:
-    """Seed python, numpy and torch; return a fresh ``torch.Generator`` on ``device`` seeded with ``seed``.
-
-    On the CPU also turn on deterministic algorithms (see module docstring).
-    """
+def seeded_generator(seed: int, device: torch.device | str | None = None) -> torch.Generator:
+    """Seed torch's global generator (network initialisation) with ``seed`` and return a fresh
+    ``torch.Generator`` on ``device`` seeded with it (batch order). On the CPU also turn on
+    deterministic algorithms (see module docstring). ``seed``: a job's fitting stream
+    (:mod:`benchmark.seeding`)."""
     seed = int(seed)
-    random.seed(seed)
-    np.random.seed(seed % 2**32)
     torch.manual_seed(seed)
     device = get_device(device)
     if device.type == "cpu":
@@ -71,9 +66,3 @@ def synchronize(device: torch.device | str | None = None) -> None:
     device = get_device(device)
     if device.type == "cuda":
         torch.cuda.synchronize(device)
-
-
-def timer(device: torch.device | str | None = None) -> float:
-    """``time.perf_counter()`` after synchronising ``device``: use in pairs to time GPU work."""
-    synchronize(device)
-    return time.perf_counter()

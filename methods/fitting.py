@@ -6,7 +6,9 @@ over ``iterations`` steps (``lr_t = lr_final + (lr - lr_final) (1 + cos(pi t / T
 step draws ``batch_size`` samples *with replacement* from the M samples with a ``torch.Generator``
 seeded by ``seed``; the loss is ``method.loss(prediction, batch_targets, inputs, model)``.
 Everything about a fit is decided by (method, samples, targets, budget, seed): on the CPU the same
-seed gives the same weights bit for bit (same thread count). A non-finite loss raises
+seed gives the same weights bit for bit (same thread count). The seed is the job's fitting stream
+(``benchmark.seeding.JobStreams.fitting_seed``); it seeds the network initialisation and the
+batch-order generator. A non-finite loss raises
 :class:`FittingError` (the runner records the job as failed and goes on).
 """
 
@@ -15,14 +17,14 @@ from __future__ import annotations
 import io
 import math
 import time
-from dataclasses import asdict, dataclass, field
-from pathlib import Path
+from dataclasses import asdict, dataclass
 from typing import Callable
 
 import numpy as np
 import torch
 
-from methods.device import get_device, seed_everything, synchronize
+from benchmark.registry import Registry
+from methods.device import get_device, seeded_generator, synchronize
 from methods.network import make_network
 
 
@@ -59,23 +61,21 @@ class Budget:
 #: method). *tiny* = tests and CI regression (a few seconds). quick keeps the paper's lr 1e-3: at 3e-3
 #: the Softplus(beta=100) SDF network collapsed to a constant on an open shape (loss 0.0134 -> 0.0139,
 #: no surface), while 1e-3 fits it (-> 0.0033). tiny starts at 3e-3 (200 steps are too few otherwise).
-BUDGETS: dict[str, Budget] = {
-    "paper": Budget("paper", depth=9, width=512, iterations=100_000, batch_size=10_000, num_samples=10_000_000,
-                    log_every=500),
-    "quick": Budget("quick", depth=5, width=128, iterations=1_000, batch_size=2_048, num_samples=200_000,
-                    lr=1e-3, log_every=50),
-    "tiny": Budget("tiny", depth=4, width=64, iterations=200, batch_size=1_024, num_samples=20_000,
-                   lr=3e-3, log_every=20),
-}
+BUDGETS: Registry[Budget] = Registry("budget")
+for _budget in (
+    Budget("paper", depth=9, width=512, iterations=100_000, batch_size=10_000, num_samples=10_000_000,
+           log_every=500),
+    Budget("quick", depth=5, width=128, iterations=1_000, batch_size=2_048, num_samples=200_000,
+           lr=1e-3, log_every=50),
+    Budget("tiny", depth=4, width=64, iterations=200, batch_size=1_024, num_samples=20_000,
+           lr=3e-3, log_every=20),
+):
+    BUDGETS.register(_budget.name, _budget)
 
 
 def get_budget(budget: str | Budget) -> Budget:
     """A budget by name (or the budget itself); unknown names list the known ones."""
-    if isinstance(budget, Budget):
-        return budget
-    if budget not in BUDGETS:
-        raise ValueError(f"unknown budget '{budget}'; known budgets: {', '.join(BUDGETS)}")
-    return BUDGETS[budget]
+    return budget if isinstance(budget, Budget) else BUDGETS.get(budget)
 
 
 @dataclass
@@ -88,15 +88,7 @@ class FitResult:
     seconds: float
     iterations: int
     final_loss: float
-    info: dict = field(default_factory=dict)
-
-    @property
-    def steps(self) -> int:
-        return self.iterations
-
-    @property
-    def samples_per_s(self) -> float:
-        return float(self.info.get("samples_per_s", 0.0))
+    samples_per_s: float
 
 
 def cosine_lr(step: int, iterations: int, lr: float, lr_final: float) -> float:
@@ -139,7 +131,7 @@ def fit(method, samples, targets: dict, budget: str | Budget, seed: int = 0, dev
     M = len(x_all)
     if M == 0:
         raise FittingError("no training samples")
-    generator = seed_everything(seed, device)
+    generator = seeded_generator(seed, device)
     model = make_network(method.input_dim, method.output_dim, **budget.network_config()).to(device)
     model.train()
     optimizer = torch.optim.AdamW(model.parameters(), lr=budget.lr, weight_decay=budget.weight_decay)
@@ -175,38 +167,32 @@ def fit(method, samples, targets: dict, budget: str | Budget, seed: int = 0, dev
     model.eval()
     curve = losses.cpu().numpy()
     final = float(np.mean(curve[-every:]))
-    info = {"samples_per_s": T * B / max(seconds, 1e-9), "budget": budget.name, "device": str(device)}
-    return FitResult(model=model, losses=curve, seconds=seconds, iterations=T, final_loss=final, info=info)
+    return FitResult(model=model, losses=curve, seconds=seconds, iterations=T, final_loss=final,
+                     samples_per_s=T * B / max(seconds, 1e-9))
 
 
 # ---------------------------------------------------------------------------------------------
-# weight cache
+# weights as bytes (the run layer's cache stores them checksummed, benchmark.storage)
 # ---------------------------------------------------------------------------------------------
-def save_model(path, model, budget: Budget, method_name: str, extra: dict | None = None) -> None:
-    """Write ``{'state_dict', 'config' (network), 'budget' (dict), 'method', ...extra}`` with torch.save,
-    atomically (temporary file then rename)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+def model_to_bytes(model, budget: Budget, method_name: str, final_loss: float) -> bytes:
+    """``torch.save`` bytes of ``{'state_dict', 'config' (network), 'budget', 'method', 'final_loss'}``."""
     buf = io.BytesIO()
-    blob = {"state_dict": model.state_dict(), "config": getattr(model, "config", None),
-            "budget": asdict(get_budget(budget)), "method": method_name, **(extra or {})}
-    torch.save(blob, buf)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_bytes(buf.getvalue())
-    tmp.replace(path)
+    torch.save({"state_dict": model.state_dict(), "config": model.config, "budget": asdict(get_budget(budget)),
+                "method": method_name, "final_loss": float(final_loss)}, buf)
+    return buf.getvalue()
 
 
-def load_model(path, device=None, method_name: str | None = None):
-    """(model in eval mode on ``device``, blob dict) from :func:`save_model`'s file.
+def model_from_bytes(data: bytes, device=None, method_name: str | None = None):
+    """(model in eval mode on ``device``, final loss) from :func:`model_to_bytes`' bytes.
 
     ``method_name``, when given, must match the stored one (a clear ValueError otherwise)."""
     device = get_device(device)
-    blob = torch.load(Path(path), map_location=device, weights_only=False)
+    blob = torch.load(io.BytesIO(data), map_location=device, weights_only=False)
     if method_name is not None and blob.get("method") != method_name:
-        raise ValueError(f"{path}: weights of method '{blob.get('method')}', expected '{method_name}'")
+        raise ValueError(f"weights of method '{blob.get('method')}', expected '{method_name}'")
     config = blob["config"]
     model = make_network(config["in_dim"], config["out_dim"], depth=config["depth"], width=config["width"],
                          beta=config["beta"], activation=config["activation"]).to(device)
     model.load_state_dict(blob["state_dict"])
     model.eval()
-    return model, blob
+    return model, float(blob["final_loss"])

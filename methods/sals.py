@@ -19,14 +19,14 @@ o_hat > ``o_low`` (0.02) mark the blocks they touch; far edges are "no hit".
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 from scipy.special import expit
 import torch
 import torch.nn.functional as F
 
+from benchmark.timing import record, stage
 from methods.base import Extraction, Method, register_method
+from methods.params import Param
 from methods import query
 
 #: Weight of the s term (SPEC section 5).
@@ -44,8 +44,18 @@ class SALSMethod(Method):
     input_kind = "segments"
     output_dim = 2
     extractor = "E-DC"
-    default_params = {"o_threshold": 0.1, "normals": True, "qef_cutoff": 0.1, "clamp_to_cell": False,
-                      "faces": "fan4", "o_low": 0.02, "stride": query.DEFAULT_STRIDE}
+    display_order = 40
+    color = "#e4572e"
+    parameters = {
+        "o_threshold": Param(0.1, "an edge is intersected when o_hat > this", gt=0, lt=1),
+        "normals": Param(True, "E-DC vertices from the QEF with autograd normals (else mass points)"),
+        "qef_cutoff": Param(0.1, "eigenvalues of A^T A below this are dropped in the QEF", ge=0),
+        "clamp_to_cell": Param(False, "clip each QEF vertex to its cell (off in the paper)"),
+        "faces": Param("fan4", "face rule: the paper's 4-triangle fan or 2 triangles per quad",
+                       choices=("fan4", "quad2")),
+        "o_low": Param(0.02, "coarse edges with o_hat > this mark blocks for the sparse query", gt=0, lt=1),
+        "stride": Param(query.DEFAULT_STRIDE, "coarse stride of the sparse query", ge=1),
+    }
 
     def training_targets(self, fields, samples) -> dict[str, np.ndarray]:
         seg = samples.segments
@@ -58,44 +68,38 @@ class SALSMethod(Method):
         s_err = (torch.sigmoid(prediction[:, 1]) - targets["s"]).abs()
         return S_WEIGHT * (s_err * o).sum() / o.sum().clamp(min=1.0) + bce
 
-    def oracle_grid(self, fields, N, cache=None):
-        from benchmark.fields import cached_grid_fields
-
-        t = time.perf_counter()
-        ef = cached_grid_fields(fields, N, "edges", cache_dir=cache)
+    def oracle_grid(self, fields, N, cache):
+        ef = cache.get(fields, N, "edges")
         ids = np.flatnonzero(ef.hit)
-        grid = {"edge_ids": ids, "s": ef.s[ids], "normals": ef.normal[ids]}
-        return grid, {"query_s": time.perf_counter() - t}
+        return {"edge_ids": ids, "s": ef.s[ids], "normals": ef.normal[ids]}, {}
 
     def neural_grid(self, model, N, device=None):
-        t0 = time.perf_counter()
         low = _logit(self.params["o_low"])
 
         def near(values):
             return values[:, 0] > low
 
-        out, _, info = query.sparse_grid_edges(model, N, near, device, stride=self.params["stride"],
-                                               edge_fill=np.array([-30.0, 0.0], dtype=np.float32))
-        ids = np.flatnonzero(out[:, 0] > _logit(self.params["o_threshold"]))
-        s = expit(out[ids, 1].astype(np.float64)).astype(np.float32)
-        t1 = time.perf_counter()
+        with stage("edges"):
+            out, _, info = query.sparse_grid_edges(model, N, near, device, stride=self.params["stride"],
+                                                   edge_fill=np.array([-30.0, 0.0], dtype=np.float32))
+            ids = np.flatnonzero(out[:, 0] > _logit(self.params["o_threshold"]))
+            s = expit(out[ids, 1].astype(np.float64)).astype(np.float32)
         normals = None
         if self.params["normals"] and len(ids):
-            _, g = query.evaluate_with_input_grad(model, query.edge_inputs(N, ids), 1, device)
-            g = np.where((s > 0.5)[:, None], g[:, :3], g[:, 3:])
-            norm = np.linalg.norm(g, axis=1, keepdims=True)
-            normals = np.divide(g, norm, out=np.zeros_like(g), where=norm > 0)
-        t2 = time.perf_counter()
-        timings = {"query_s": t2 - t0, "query_edges_s": t1 - t0, "query_normals_s": t2 - t1,
-                   "query_fraction": info.fraction}
-        return {"edge_ids": ids, "s": s, "normals": normals}, timings
+            with stage("normals"):
+                _, g = query.evaluate_with_input_grad(model, query.edge_inputs(N, ids), 1, device)
+                g = np.where((s > 0.5)[:, None], g[:, :3], g[:, 3:])
+                norm = np.linalg.norm(g, axis=1, keepdims=True)
+                normals = np.divide(g, norm, out=np.zeros_like(g), where=norm > 0)
+        return {"edge_ids": ids, "s": s, "normals": normals}, {"query_fraction": info.fraction}
 
-    def extract(self, grid_field, N, query=None) -> Extraction:
+    def extract(self, grid_field, N) -> Extraction:
         from methods.edc import edc_extract
 
         normals = grid_field.get("normals") if self.params["normals"] else None
         V, Fc, steps = edc_extract(N, grid_field["edge_ids"], grid_field["s"], normals,
                                    qef_cutoff=self.params["qef_cutoff"], clamp_to_cell=self.params["clamp_to_cell"],
                                    faces=self.params["faces"])
-        return Extraction(V, Fc, {f"extract_{k}_s": float(v) for k, v in steps.items()},
-                          info={"intersected_edges": int(len(grid_field["edge_ids"]))})
+        for step, seconds in steps.items():
+            record(step, seconds)
+        return Extraction(V, Fc, info={"intersected_edges": int(len(grid_field["edge_ids"]))})

@@ -11,13 +11,12 @@ min |f| < sqrt(3) S h / 2"; far points hold the trilinear upsampling of the coar
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import torch
 
 from methods.base import Extraction, Method, register_method
 from methods.marching_cubes import marching_cubes_grid
+from methods.params import Param
 from methods import query
 
 #: Loss clamp of the signed distance (SPEC section 5), canonical units.
@@ -31,7 +30,12 @@ class SDFMethod(Method):
     input_kind = "points"
     output_dim = 1
     extractor = "marching cubes"
-    default_params = {"level": 0.0, "stride": query.DEFAULT_STRIDE}
+    display_order = 20
+    color = "#3a7fc1"
+    parameters = {
+        "level": Param(0.0, "iso level of marching cubes (canonical units)", gt=-CLAMP, lt=CLAMP),
+        "stride": Param(query.DEFAULT_STRIDE, "coarse stride of the sparse query", ge=1),
+    }
 
     def training_targets(self, fields, samples) -> dict[str, np.ndarray]:
         return {"sdf": fields.sdf(samples.points).astype(np.float32)}
@@ -39,20 +43,14 @@ class SDFMethod(Method):
     def loss(self, prediction, targets, inputs=None, model=None):
         return (prediction[:, 0].clamp(-CLAMP, CLAMP) - targets["sdf"].clamp(-CLAMP, CLAMP)).abs().mean()
 
-    def oracle_grid(self, fields, N, cache=None):
-        from benchmark.fields import cached_grid_fields
-
-        t = time.perf_counter()
-        volume = cached_grid_fields(fields, N, "sdf", cache_dir=cache)
-        return volume, {"query_s": time.perf_counter() - t}
+    def oracle_grid(self, fields, N, cache):
+        return cache.get(fields, N, "sdf"), {}
 
     def neural_grid(self, model, N, device=None):
-        t = time.perf_counter()
         near = query.near_level(self.params["level"], query.block_half_diagonal(N, self.params["stride"]))
         values, _, info = query.sparse_grid_points(model, N, near, device, stride=self.params["stride"])
-        return values[..., 0], {"query_s": time.perf_counter() - t, "query_fraction": info.fraction}
+        return values[..., 0], {"query_fraction": info.fraction}
 
-    def extract(self, grid_field, N, query=None) -> Extraction:
-        t = time.perf_counter()
+    def extract(self, grid_field, N) -> Extraction:
         V, F = marching_cubes_grid(np.asarray(grid_field), level=self.params["level"], inside="low")
-        return Extraction(V, F, {"extract_mc_s": time.perf_counter() - t})
+        return Extraction(V, F)

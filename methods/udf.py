@@ -19,14 +19,14 @@ normalised; 0 elsewhere.
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import torch
 import torch.nn.functional as F
 
 from benchmark.grid import spacing
+from benchmark.timing import record, stage
 from methods.base import Extraction, Method, register_method
+from methods.params import Param
 from methods import query
 
 #: Loss clamp of the distance (SPEC section 5), canonical units.
@@ -43,8 +43,17 @@ class UDFMethod(Method):
     output_dim = 1
     extractor = "MeshUDF"
     loss_needs_input_grad = True
-    default_params = {"face_filter": 1.0 / 6.0, "mean_factor": 1.05, "max_factor": 1.74,
-                      "sign_rule": "hybrid", "vertex_udf": "field", "stride": query.DEFAULT_STRIDE}
+    display_order = 30
+    color = "#f2a541"
+    parameters = {
+        "face_filter": Param(1.0 / 6.0, "faces whose largest vertex UDF is >= this x h are removed", gt=0),
+        "mean_factor": Param(1.05, "candidate cubes: mean corner UDF < this x h", gt=0),
+        "max_factor": Param(1.74, "candidate cubes: max corner UDF <= this x h", gt=0),
+        "sign_rule": Param("hybrid", "pseudo-sign rule of a cube's corners", choices=("hybrid", "anchor")),
+        "vertex_udf": Param("field", "vertex UDF of the face filter: the continuous field or MeshUDF's estimate",
+                            choices=("field", "estimate")),
+        "stride": Param(query.DEFAULT_STRIDE, "coarse stride of the sparse query", ge=1),
+    }
 
     def training_targets(self, fields, samples) -> dict[str, np.ndarray]:
         d, g = fields.udf(samples.points, return_grad=True)
@@ -62,42 +71,36 @@ class UDFMethod(Method):
         cos = F.cosine_similarity(grad_f, g, dim=1, eps=1e-8)
         return l1 + GRAD_WEIGHT * ((1.0 - cos) * band).sum() / band.sum().clamp(min=1.0)
 
-    def oracle_grid(self, fields, N, cache=None):
-        from benchmark.fields import cached_grid_fields
-
-        t = time.perf_counter()
-        d, g = cached_grid_fields(fields, N, "udf_grad", cache_dir=cache)
-        return {"udf": d, "grad": g, "udf_at": fields.udf}, {"query_s": time.perf_counter() - t}
+    def oracle_grid(self, fields, N, cache):
+        d, g = cache.get(fields, N, "udf_grad")
+        return {"udf": d, "grad": g, "udf_at": fields.udf}, {}
 
     def neural_grid(self, model, N, device=None):
-        t0 = time.perf_counter()
         stride = self.params["stride"]
         near = query.near_below(query.block_half_diagonal(N, stride))
-        values, _, info = query.sparse_grid_points(model, N, near, device, stride=stride)
-        d = np.maximum(values[..., 0], 0.0)
-        t1 = time.perf_counter()
-        grad = np.zeros(d.shape + (3,), dtype=np.float32)
-        ijk = np.argwhere(d < 2.0 * spacing(N))
-        if len(ijk):
-            _, g = query.evaluate_with_input_grad(model, query.point_inputs(N, ijk), 0, device)
-            norm = np.linalg.norm(g, axis=1, keepdims=True)
-            grad[tuple(ijk.T)] = np.divide(g, norm, out=np.zeros_like(g), where=norm > 0)
-        t2 = time.perf_counter()
+        with stage("values"):
+            values, _, info = query.sparse_grid_points(model, N, near, device, stride=stride)
+            d = np.maximum(values[..., 0], 0.0)
+        with stage("grad"):
+            grad = np.zeros(d.shape + (3,), dtype=np.float32)
+            ijk = np.argwhere(d < 2.0 * spacing(N))
+            if len(ijk):
+                _, g = query.evaluate_with_input_grad(model, query.point_inputs(N, ijk), 0, device)
+                norm = np.linalg.norm(g, axis=1, keepdims=True)
+                grad[tuple(ijk.T)] = np.divide(g, norm, out=np.zeros_like(g), where=norm > 0)
 
         def udf_at(points):
             return np.maximum(query.evaluate(model, np.asarray(points, dtype=np.float32), device)[:, 0], 0.0)
 
-        timings = {"query_s": t2 - t0, "query_values_s": t1 - t0, "query_grad_s": t2 - t1,
-                   "query_fraction": info.fraction}
-        return {"udf": d, "grad": grad, "udf_at": udf_at}, timings
+        return {"udf": d, "grad": grad, "udf_at": udf_at}, {"query_fraction": info.fraction}
 
-    def extract(self, grid_field, N, query=None) -> Extraction:
+    def extract(self, grid_field, N) -> Extraction:
         from methods.meshudf import meshudf_extract
 
         udf_at = grid_field.get("udf_at") if self.params["vertex_udf"] == "field" else None
-        if self.params["vertex_udf"] not in ("field", "estimate"):
-            raise ValueError(f"udf vertex_udf must be 'field' or 'estimate', got {self.params['vertex_udf']!r}")
         V, Fc, steps = meshudf_extract(grid_field["udf"], grid_field["grad"], udf_at=udf_at,
                                        mean_factor=self.params["mean_factor"], max_factor=self.params["max_factor"],
                                        face_factor=self.params["face_filter"], sign_rule=self.params["sign_rule"])
-        return Extraction(V, Fc, {f"extract_{k}_s": float(v) for k, v in steps.items()})
+        for step, seconds in steps.items():
+            record(step, seconds)
+        return Extraction(V, Fc)

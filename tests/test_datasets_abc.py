@@ -18,11 +18,10 @@ from datasets import (
     available_datasets,
     get_dataset,
     load_shape,
-    register_dataset,
     save_mesh,
 )
 from datasets.abc import compose_soup, match_list_entry, read_list_file
-from datasets.registry import _REGISTRY
+from datasets.registry import DATASETS, available_datasets
 from tests.conftest import SHARED_DATA, requires_shared
 
 SALS_LIST = SHARED_DATA / "lists" / "sals_abc_list.txt"
@@ -229,7 +228,6 @@ def test_registry_errors(tmp_path):
 
 
 def test_register_a_custom_dataset():
-    @register_dataset("test-one-tetra")
     class OneTetra(Dataset):
         def names(self):
             return ["tet"]
@@ -239,10 +237,12 @@ def test_register_a_custom_dataset():
 
             return normalize_shape(name, *tetra())
 
-    try:
+    with DATASETS.registered("test-one-tetra", OneTetra):
+        OneTetra.name = "test-one-tetra"
         ds = get_dataset("test-one-tetra")
         assert ds.name == "test-one-tetra" and len(ds) == 1
         assert [s.name for s in ds] == ["tet"]
         assert ds.describe() == {"dataset": "test-one-tetra", "options": {}, "count": 1, "names": ["tet"]}
-    finally:
-        _REGISTRY.pop("test-one-tetra", None)
+    assert "test-one-tetra" not in available_datasets()
+    with pytest.raises(DatasetError, match="unknown dataset 'test-one-tetra'; known datasets: builtin"):
+        get_dataset("test-one-tetra")

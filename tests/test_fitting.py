@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from methods.base import Method
-from methods.fitting import BUDGETS, Budget, FittingError, cosine_lr, fit, get_budget, load_model, save_model
+from methods.fitting import BUDGETS, Budget, FittingError, cosine_lr, fit, get_budget, model_from_bytes, model_to_bytes
 from methods.query import evaluate
 
 TOY = Budget("toy", depth=3, width=32, iterations=60, batch_size=256, num_samples=2000, log_every=10)
@@ -96,15 +96,14 @@ def test_nan_loss_and_bad_targets_raise_fitting_error():
         fit(SphereSDF(), samples, {"sdf": targets["sdf"][:10]}, TOY, seed=0, device="cpu")
 
 
-def test_save_and_load_model_round_trip(tmp_path):
+def test_model_bytes_round_trip():
     samples, targets = _toy_data()
     budget = replace(TOY, iterations=5)
     res = fit(SphereSDF(), samples, targets, budget, seed=0, device="cpu")
-    path = tmp_path / "w" / "toy.pt"
-    save_model(path, res.model, budget, "toy-sdf")
-    model, blob = load_model(path, device="cpu", method_name="toy-sdf")
-    assert blob["budget"]["iterations"] == 5 and blob["method"] == "toy-sdf"
+    data = model_to_bytes(res.model, budget, "toy-sdf", res.final_loss)
+    model, loss = model_from_bytes(data, device="cpu", method_name="toy-sdf")
+    assert loss == res.final_loss
     x = samples.points[:100]
     np.testing.assert_array_equal(evaluate(model, x), evaluate(res.model, x))
     with pytest.raises(ValueError, match="expected 'sdf'"):
-        load_model(path, device="cpu", method_name="sdf")
+        model_from_bytes(data, device="cpu", method_name="sdf")

@@ -6,12 +6,14 @@ import pytest
 import torch
 import trimesh
 
+from benchmark.field_cache import FieldCache
 from benchmark.fields import ExactFields
 from benchmark.metrics import evaluate
 from benchmark.sampler import sample_training_data
-from methods import base
-from methods.base import Method, available_methods, get_method, register_method
+from benchmark.timing import StageTimer, stage
+from methods.base import METHODS, Method, available_methods, get_method
 from methods.fitting import BUDGETS, fit
+from methods.params import Param
 
 N_POINTS = 30_000  # metric samples: enough to separate sharp from rounded at N = 40
 
@@ -22,9 +24,12 @@ def _arrays(mesh):
 
 def _oracle(name, V, F, N, tmp_path, **params):
     method = get_method(name, **params)
-    grid, timings = method.oracle_grid(ExactFields(V, F), N, cache=str(tmp_path))
-    ex = method.extract(grid, N)
-    assert "query_s" in timings and all(k.startswith("extract_") and k.endswith("_s") for k in ex.timings)
+    with StageTimer().active() as timer:
+        with stage("query"):
+            grid, _ = method.oracle_grid(ExactFields(V, F), N, FieldCache(tmp_path))
+        with stage("extract"):
+            ex = method.extract(grid, N)
+    assert all(k.startswith(("query", "extract")) and k.endswith("_s") for k in timer.seconds)
     return ex
 
 
@@ -40,24 +45,34 @@ def test_registry_has_the_four_methods_and_lists_them_on_unknown_names():
     with pytest.raises(ValueError, match="unknown method 'nerf'; known methods: ") as err:
         get_method("nerf")
     listed = str(err.value).split("known methods: ")[1].split(", ")
-    assert {"bof", "sdf", "udf", "sals"} <= set(listed) and listed == sorted(listed)
+    assert listed[:4] == ["bof", "sdf", "udf", "sals"]  # display order, from each method's metadata
     with pytest.raises(ValueError, match="no parameter"):
         get_method("sals", thresold=0.2)
     assert get_method("sals", o_threshold=0.2).params["o_threshold"] == 0.2
     assert get_method("sals").input_dim == 6 and get_method("udf").input_dim == 3
+    assert len({METHODS.get(m).color for m in listed}) == len(listed)  # one colour each
+
+
+def test_parameters_are_typed_and_checked():
+    assert get_method("sals", normals="no").params["normals"] is False
+    assert get_method("sals", normals="TRUE").params["normals"] is True
+    assert get_method("sals", stride="2").params["stride"] == 2
+    for bad, message in ((dict(normals="nope"), "expected bool"), (dict(o_threshold=1.5), r"float in \(0, 1\)"),
+                         (dict(qef_cutoff="abc"), "expected float"), (dict(faces="tri"), "one of 'fan4', 'quad2'"),
+                         (dict(stride="2.5"), "expected int")):
+        with pytest.raises(ValueError, match=message):
+            get_method("sals", **bad)
 
 
 def test_a_fifth_method_defined_here_is_found():
-    @register_method
     class Constant(Method):
         name = "test-constant"
-        default_params = {"value": 1.0}
+        parameters = {"value": Param(1.0, "the constant")}
 
-    try:
+    with METHODS.registered(Constant.name, Constant):
         assert "test-constant" in available_methods()
         assert get_method("test-constant", value=2.0).params == {"value": 2.0}
-    finally:
-        base._REGISTRY.pop("test-constant")
+    assert "test-constant" not in available_methods()
 
 
 # -- oracle mode -------------------------------------------------------------------------------
@@ -141,7 +156,7 @@ NEURAL_CD_BOUND = {"sdf": 0.03, "bof": 0.05, "udf": 0.05, "sals": 0.2}
 @pytest.fixture(scope="module")
 def sphere():
     V, F = _arrays(trimesh.creation.icosphere(subdivisions=3, radius=0.7))
-    return V, F, ExactFields(V, F), sample_training_data(V, F, BUDGETS["tiny"].num_samples, 0)
+    return V, F, ExactFields(V, F), sample_training_data(V, F, BUDGETS["tiny"].num_samples, np.random.default_rng(0))
 
 
 @pytest.mark.parametrize("name", ["sdf", "bof", "udf", "sals"])
@@ -153,12 +168,12 @@ def test_tiny_neural_fit_on_a_sphere(name, sphere):
         method = get_method(name)
         targets = method.training_targets(fields, samples)
         res = fit(method, samples, targets, "tiny", seed=0, device="cpu")
-        grid, timings = method.neural_grid(res.model, 32, "cpu")
+        grid, info = method.neural_grid(res.model, 32, "cpu")
         ex = method.extract(grid, 32)
     finally:
         torch.set_num_threads(old)
     assert np.isfinite(res.final_loss) and res.final_loss < res.losses[:10].mean()
-    assert timings["query_s"] > 0
+    assert 0 < info["query_fraction"] <= 1
     r = evaluate(V, F, ex.vertices, ex.faces, n_points=10_000)
     print(name, r["cd"], res.final_loss)
     assert r["cd"] < NEURAL_CD_BOUND[name]
