@@ -33,3 +33,17 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip(f"{SHARED_DATA} is absent: real-mesh tests need ../shared/data beside the checkout")
     return SHARED_DATA
+
+
+@pytest.fixture
+def fakes():
+    """The test-only methods of tests/fake_methods.py, registered for one test."""
+    from contextlib import ExitStack
+
+    from methods.base import METHODS
+    from tests.fake_methods import FAKES
+
+    with ExitStack() as stack:
+        for cls in FAKES:
+            stack.enter_context(METHODS.registered(cls.name, cls))
+        yield

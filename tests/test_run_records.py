@@ -1,4 +1,4 @@
-"""The results database (benchmark.records): schema, round trips, replacement, WAL, readers."""
+"""The results database (benchmark.run.records): schema, round trips, replacement, WAL, readers."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import sqlite3
 import numpy as np
 import pytest
 
-from benchmark.records import DB_NAME, JOB_COLUMNS, ResultsDB, column_name, open_run_db
+from benchmark.run.records import DB_NAME, JOB_COLUMNS, ResultsDB, column_name, open_run_db
 
 
 def _job(hash_, status="ok", **kw):
@@ -25,7 +25,7 @@ def test_schema_created_with_wal(tmp_path):
     assert set(JOB_COLUMNS) <= set(db.columns("jobs"))
     assert {"floor_hash", "shape", "status"} <= set(db.columns("floor"))
     assert db.conn.execute("PRAGMA journal_mode").fetchone()[0].lower() == "wal"
-    assert db.get_meta("schema_version") == "1"
+    assert db.get_meta("schema_version") == "2"
     db.close()
 
 

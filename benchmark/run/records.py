@@ -1,39 +1,24 @@
 """The results database of a run: one SQLite file, ``<run dir>/results.db``.
 
-The driver (``benchmark.runner``) is its only writer; every finished job is committed at once (WAL
-journal), so killing the process loses at most the jobs in flight. Readers (reports, ``sqlite3``,
-pandas) may open it at any time.
+The driver (:mod:`benchmark.run.driver`) is its only writer; every finished task is committed at
+once (WAL journal), so killing the process loses at most the tasks in flight. Readers (reports,
+``sqlite3``, pandas) may open it at any time.
 
-Schema (``SCHEMA_VERSION`` 1)
------------------------------
-``jobs`` -- one row per job, primary key ``config_hash`` (sha256 of the job's defining settings, see
-:class:`benchmark.runner.JobSpec`); a re-run of a failed job replaces its row.
+Tables (``SCHEMA_VERSION`` 2; columns declared in :mod:`benchmark.run.schema`):
 
-    config_hash TEXT PK, shape TEXT, method TEXT, mode TEXT, seed INTEGER, status TEXT ('ok'|'failed'),
-    error TEXT (one line), traceback TEXT, params TEXT (JSON), budget TEXT, grid INTEGER,
-    eval_points INTEGER, metric_preset TEXT, shape_hash TEXT, shape_kind TEXT, fit_loss REAL,
-    attempts INTEGER, cache TEXT (which caches hit, comma separated), mesh_path TEXT (relative to the
-    run dir), device TEXT, host TEXT, versions TEXT (JSON), info TEXT (JSON), started TEXT,
-    finished TEXT (ISO 8601 UTC), extra TEXT (JSON of non-scalar values)
+* ``jobs`` -- one row per job, primary key ``config_hash`` (the task key, :mod:`benchmark.run.tasks`);
+  a re-run of a failed job replaces its row.
+* ``floor`` -- one row per shape (GT against a resample of itself), primary key ``floor_hash``.
+* ``meta`` -- ``key TEXT PK, value TEXT``: ``schema_version``.
 
-    plus one column per metric (``cd``, ``nc``, ``f1_005``, ... as returned by
-    ``benchmark.metrics.evaluate``; raw units) and per timing (``sample_s``, ``fit_s``, ...;
-    wall-clock seconds), added with ``ALTER TABLE`` the first time a key appears. Booleans are
-    stored as 0/1, strings as TEXT. A metric key that clashes with a fixed column is stored as
-    ``metric_<key>``.
-
-``floor`` -- one row per shape: the GT scored against a resample of itself
-(``benchmark.metrics.floor``), primary key ``floor_hash``; columns ``shape, shape_hash, shape_kind,
-source, gt_vertices, gt_faces, status, error, seed, eval_points, metric_preset, mesh_path, finished``
-plus dynamic metric/timing columns as in ``jobs``.
-
-``meta`` -- ``key TEXT PK, value TEXT``: ``schema_version`` and ``config`` (the latest resolved
-configuration, JSON).
+Metric and timing keys not declared in the schema get their own column the first time they
+appear (``ALTER TABLE``; REAL for numbers, TEXT for strings). Booleans are stored as 0/1. A key
+that clashes with a fixed column is stored as ``metric_<key>``; non-scalar values go to ``extra``
+(JSON).
 """
 
 from __future__ import annotations
 
-import json
 import re
 import sqlite3
 from pathlib import Path
@@ -42,55 +27,16 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 import pandas as pd
 
-SCHEMA_VERSION = 1
+from benchmark.run.schema import TABLES, sql_columns
+from benchmark.serialize import dumps
+
+SCHEMA_VERSION = 2
 DB_NAME = "results.db"
 
-JOB_COLUMNS: dict[str, str] = {
-    "config_hash": "TEXT PRIMARY KEY",
-    "shape": "TEXT",
-    "method": "TEXT",
-    "mode": "TEXT",
-    "seed": "INTEGER",
-    "status": "TEXT",
-    "error": "TEXT",
-    "traceback": "TEXT",
-    "params": "TEXT",
-    "budget": "TEXT",
-    "grid": "INTEGER",
-    "eval_points": "INTEGER",
-    "metric_preset": "TEXT",
-    "shape_hash": "TEXT",
-    "shape_kind": "TEXT",
-    "fit_loss": "REAL",
-    "attempts": "INTEGER",
-    "cache": "TEXT",
-    "mesh_path": "TEXT",
-    "device": "TEXT",
-    "host": "TEXT",
-    "versions": "TEXT",
-    "info": "TEXT",
-    "started": "TEXT",
-    "finished": "TEXT",
-    "extra": "TEXT",
-}
-
-FLOOR_COLUMNS: dict[str, str] = {
-    "floor_hash": "TEXT PRIMARY KEY",
-    "shape": "TEXT",
-    "shape_hash": "TEXT",
-    "shape_kind": "TEXT",
-    "source": "TEXT",
-    "gt_vertices": "INTEGER",
-    "gt_faces": "INTEGER",
-    "status": "TEXT",
-    "error": "TEXT",
-    "seed": "INTEGER",
-    "eval_points": "INTEGER",
-    "metric_preset": "TEXT",
-    "mesh_path": "TEXT",
-    "finished": "TEXT",
-    "extra": "TEXT",
-}
+JOB_COLUMNS: dict[str, str] = sql_columns("jobs")
+FLOOR_COLUMNS: dict[str, str] = sql_columns("floor")
+#: Declared columns that hold measured values (metrics, mesh counts, timings).
+MEASURED = {c.name for table in TABLES.values() for c in table if c.role in ("metric", "validity", "timing")}
 
 #: Keys of ``metrics.evaluate``'s result that restate the protocol; recorded by fixed columns instead.
 PROTOCOL_KEYS = ("preset", "n_points", "seed")
@@ -99,12 +45,13 @@ _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 
 def column_name(key: str, fixed: Mapping[str, str]) -> str:
-    """SQL column for a metric/timing key: the key itself, ``metric_<key>`` if it clashes with a
-    fixed column; anything that is not an identifier is rewritten with underscores."""
+    """SQL column for a metric/timing key: the key itself (declared measured columns included),
+    ``metric_<key>`` if it clashes with a fixed non-measured column (e.g. 'status'); anything that
+    is not an identifier is rewritten with underscores."""
     name = re.sub(r"[^A-Za-z0-9_]", "_", str(key))
     if not _NAME.match(name):
         name = "m_" + name
-    return f"metric_{name}" if name in fixed else name
+    return f"metric_{name}" if name in fixed and name not in MEASURED else name
 
 
 def scalar(value: Any) -> tuple[bool, Any]:
@@ -120,24 +67,6 @@ def scalar(value: Any) -> tuple[bool, Any]:
     if isinstance(value, str):
         return True, value
     return False, None
-
-
-def _json(value: Any) -> str:
-    return json.dumps(value, sort_keys=True, default=_json_default)
-
-
-def _json_default(value):
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, (np.integer,)):
-        return int(value)
-    if isinstance(value, (np.floating,)):
-        return float(value)
-    if isinstance(value, (np.bool_,)):
-        return bool(value)
-    if isinstance(value, Path):
-        return str(value)
-    return repr(value)
 
 
 class ResultsDB:
@@ -198,7 +127,7 @@ class ResultsDB:
         for key, value in fixed.items():
             if key not in fixed_columns:
                 raise KeyError(f"'{key}' is not a fixed column")
-            row[key] = _json(value) if isinstance(value, (dict, list, tuple)) else scalar(value)[1]
+            row[key] = dumps(value) if isinstance(value, (dict, list, tuple)) else scalar(value)[1]
         for values in measured:
             for key, value in values.items():
                 if key in PROTOCOL_KEYS:
@@ -209,7 +138,7 @@ class ResultsDB:
                 else:
                     extra[key] = value
         if extra:
-            row["extra"] = _json(extra)
+            row["extra"] = dumps(extra)
         return row
 
     def _upsert(self, table: str, row: Mapping[str, Any]) -> None:

@@ -1,4 +1,4 @@
-"""Executors: where the runner's tasks run. One job function (``benchmark.runner.run_task``) serves all.
+"""Executors: where a run's tasks run. One job function (``benchmark.run.job.run_task``) serves all.
 
 Every executor has the same two methods::
 
@@ -40,7 +40,9 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
-REPO = Path(__file__).resolve().parents[1]
+from benchmark.registry import Registry
+
+REPO = Path(__file__).resolve().parents[2]
 
 StageCallback = Callable[..., None]
 
@@ -313,17 +315,19 @@ class RayExecutor:
 # =============================================================================================
 
 
-def make_executor(cfg: dict):
-    """The executor named by ``cfg['executor']`` with the config's workers/address/retries/resources."""
-    kind = cfg.get("executor", "local")
-    if kind == "local":
-        return LocalExecutor()
-    if kind == "process":
-        return ProcessExecutor(workers=cfg.get("workers"), retries=cfg.get("retries", 1))
-    if kind == "ray":
-        return RayExecutor(address=cfg.get("address"), workers=cfg.get("workers"), retries=cfg.get("retries", 1),
-                           gpus_per_job=cfg.get("gpus_per_job", 1.0), cpus_per_job=cfg.get("cpus_per_job", 1.0))
-    raise ValueError(f"unknown executor '{kind}'; known: local, process, ray")
+#: Executor name -> factory taking the run's :class:`benchmark.run.config.RunConfig`.
+EXECUTORS: Registry = Registry("executor")
+EXECUTORS.register("local", lambda config: LocalExecutor())
+EXECUTORS.register("process", lambda config: ProcessExecutor(workers=config.workers, retries=config.retries,
+                                                             threads=config.threads))
+EXECUTORS.register("ray", lambda config: RayExecutor(address=config.address, workers=config.workers,
+                                                     retries=config.retries, gpus_per_job=config.gpus_per_job,
+                                                     cpus_per_job=config.cpus_per_job))
+
+
+def make_executor(config):
+    """The executor a run config names, built with its workers/address/retries/resources."""
+    return EXECUTORS.get(config.executor)(config)
 
 
 def ray_available() -> tuple[bool, str]:
@@ -337,7 +341,4 @@ def ray_available() -> tuple[bool, str]:
 
 
 __all__ = ["LocalExecutor", "ProcessExecutor", "RayExecutor", "WorkerLost", "make_executor", "threads_per_worker",
-           "available_cores", "ray_available"]
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit("benchmark.executors is a library; run run_benchmark.py --executor ...")
+           "available_cores", "ray_available", "EXECUTORS"]

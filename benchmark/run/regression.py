@@ -1,8 +1,8 @@
 """Regression check on a frozen ABC subset against committed baseline tables.
 
-    python -m benchmark.regression                      # run both tiers, compare, exit 1 on drift
-    python -m benchmark.regression --tier oracle        # one tier
-    python -m benchmark.regression --update-baselines   # rewrite reports/baselines/<tier>/ (review the diff!)
+    python -m benchmark.run.regression                      # run both tiers, compare, exit 1 on drift
+    python -m benchmark.run.regression --tier oracle        # one tier
+    python -m benchmark.run.regression --update-baselines   # rewrite reports/baselines/<tier>/ (review the diff!)
 
 The subset is ``reports/baselines/abc_subset.txt`` (5 meshes of ``../shared/data/abc``) plus the two
 non-manifold pairs of ``abc_subset_nonmanifold.txt``; ``abc_subset.sha256`` pins every file, so a
@@ -39,11 +39,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-REPO = Path(__file__).resolve().parents[1]
+from benchmark.run.schema import columns, regression_columns
+from methods.base import available_methods
+
+REPO = Path(__file__).resolve().parents[2]
 BASELINES = REPO / "reports" / "baselines"
 DEFAULT_DATA_DIR = REPO.parent / "shared" / "data" / "abc"
 KEY = ["shape", "method", "seed"]
-METHODS = ["bof", "sdf", "udf", "sals"]
 
 #: Measured spread of the neural tier (module docstring): relative change, median over the 28 jobs.
 NEURAL_SPREAD = {"threads_1_vs_2": {"all": 0.0},
@@ -66,7 +68,8 @@ class Tier:
     notes: str = ""
 
 
-_COUNTS = ("n_vertices", "n_faces", "boundary_edges", "nonmanifold_edges", "components")
+#: Mesh counts compared by every tier (from the result schema).
+_COUNTS = tuple(c.name for c in columns("validity") if c.regression)
 
 TIERS: dict[str, Tier] = {
     "oracle": Tier(
@@ -128,13 +131,13 @@ def run_tier(tier: Tier, data_dir: Path, out_dir: Path, python: str = sys.execut
     for dataset, list_file in (("abc", "abc_subset.txt"), ("abc-nonmanifold", "abc_subset_nonmanifold.txt")):
         run_dir = out_dir / f"{tier.name}-{dataset}"
         cmd = [
-            python, str(REPO / "run_benchmark.py"), "--methods", *METHODS, "--dataset", dataset,
+            python, str(REPO / "run_benchmark.py"), "--methods", *available_methods(), "--dataset", dataset,
             "--data-dir", str(data_dir), "--list", str(BASELINES / list_file), "--out", str(run_dir),
             "--quiet", *tier.run_args, *extra_args,
         ]
         print("$ " + " ".join(cmd), flush=True)
         proc = subprocess.run(cmd, cwd=REPO)
-        if proc.returncode != 0:
+        if proc.returncode not in (0, 3):  # 3: finished with failed jobs (compared as status changes)
             raise RegressionError(f"run_benchmark.py exited with {proc.returncode} for tier {tier.name} ({dataset})")
         frames.append(pd.read_csv(run_dir / "results.csv"))
     return pd.concat(frames, ignore_index=True)
@@ -206,12 +209,12 @@ def update_baselines(tier: Tier, results: pd.DataFrame, work_dir: Path) -> None:
 
 def baseline_columns(frame: pd.DataFrame) -> pd.DataFrame:
     """The columns the baseline keeps: the key, status, and every metric with a tolerance (timings vary)."""
-    keep = KEY + ["status"] + [c for c in frame.columns if c in {m for t in TIERS.values() for m in t.tolerances}]
+    keep = KEY + ["status"] + [c for c in regression_columns() if c in frame.columns]
     return frame[[c for c in keep if c in frame.columns]]
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmark.regression", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m benchmark.run.regression", description=__doc__.split("\n\n")[0])
     parser.add_argument("--tier", choices=[*TIERS, "all"], default="all", help="which tier(s) to run (default: all)")
     parser.add_argument("--data-dir", type=Path, default=DEFAULT_DATA_DIR,
                         help="folder with the ABC meshes of the subset (default: ../shared/data/abc)")

@@ -5,7 +5,7 @@ import hashlib
 import numpy as np
 import pandas as pd
 
-from benchmark.regression import BASELINES, TIERS, Tier, Tolerance, compare, read_list, verify_manifest
+from benchmark.run.regression import BASELINES, TIERS, Tier, Tolerance, compare, read_list, verify_manifest
 from tests.conftest import SHARED_DATA, requires_shared
 
 

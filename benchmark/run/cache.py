@@ -1,0 +1,171 @@
+"""The run layer's caches: fitted weights and extracted meshes, keyed by what defines them.
+
+Layout under the cache root (:func:`benchmark.storage.cache_root`): ``fields/`` exact grid fields
+(:class:`benchmark.field_cache.FieldCache`), ``weights/<method>_<key>.pt`` fitted networks,
+``meshes/<method>_<key>.npz`` extracted meshes. Every entry is written atomically with a checksum
+(:func:`benchmark.storage.write_checked`); a damaged entry is recomputed and counted
+(:class:`benchmark.storage.CacheStats`), never used.
+
+Keys:
+
+* weights: shape content hash, method, its network input/output, the budget's values, the seed,
+  and the *code digest* of the fit: the source of the method's module and of every project module
+  it, the fitting loop, the sampler and the exact fields import (:func:`code_digest`).
+* meshes: the weights key (neural) or the mode (oracle), the method's full parameters, the grid and
+  the code digest of the method's module (its extractor and query code included).
+
+:func:`code_digest` follows the imports it finds in the source (``import``/``from`` statements,
+also inside functions) through the project's packages (benchmark, methods, datasets) and hashes
+every module file reached. A module that cannot be found raises instead of counting as empty, so a
+renamed module never silently stops invalidating the caches that depend on it.
+"""
+
+from __future__ import annotations
+
+import ast
+import hashlib
+import importlib.util
+import io
+import json
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from benchmark.field_cache import FieldCache
+from benchmark.storage import CacheStats, CorruptEntry, read_checked, write_checked
+
+#: Top-level packages whose modules enter code digests.
+PROJECT_PACKAGES = ("benchmark", "methods", "datasets")
+
+
+def _module_file(name: str) -> Path:
+    spec = importlib.util.find_spec(name)
+    if spec is None or spec.origin is None or not spec.origin.endswith(".py"):
+        raise ModuleNotFoundError(f"code digest: project module '{name}' has no source file")
+    return Path(spec.origin)
+
+
+def _is_module(name: str) -> bool:
+    try:
+        spec = importlib.util.find_spec(name)
+    except ModuleNotFoundError:  # a parent is not a package (``from a.b import Attribute``)
+        return False
+    return spec is not None and bool(spec.origin) and spec.origin.endswith(".py")
+
+
+def _imports(name: str, path: Path) -> set[str]:
+    """Project modules named by the import statements of one module (relative ones resolved).
+
+    ``import a.b`` and the ``a.b`` of ``from a.b import c`` must exist (else ModuleNotFoundError);
+    ``a.b.c`` counts when ``c`` is a module rather than an attribute."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    required: set[str] = set()
+    optional: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            required.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parts = package.split(".")
+                base = ".".join(parts[: len(parts) - node.level + 1] + ([base] if base else []))
+            required.add(base)
+            optional.update(f"{base}.{a.name}" for a in node.names)
+    project = lambda mods: {m for m in mods if m.split(".")[0] in PROJECT_PACKAGES}  # noqa: E731
+    for mod in project(required):
+        if not _is_module(mod):
+            raise ModuleNotFoundError(f"code digest: '{name}' imports '{mod}', which does not exist")
+    return project(required) | {m for m in project(optional) if _is_module(m)}
+
+
+@lru_cache(maxsize=None)
+def code_digest(*modules: str) -> str:
+    """SHA-256 (16 hex) over the source files of ``modules`` and the project modules they import,
+    transitively (module docstring)."""
+    seen: dict[str, Path] = {}
+    todo = list(modules)
+    while todo:
+        name = todo.pop()
+        if name in seen:
+            continue
+        path = _module_file(name)
+        seen[name] = path
+        todo.extend(_imports(name, path) - set(seen))
+        parent = name.rpartition(".")[0]
+        if parent and parent not in seen:
+            todo.append(parent)
+    h = hashlib.sha256()
+    for name in sorted(seen):
+        h.update(name.encode() + b"\0" + seen[name].read_bytes() + b"\0")
+    return h.hexdigest()[:16]
+
+
+def fit_code_digest(method) -> str:
+    """Code a fit depends on: the method's module, the fitting loop, the sampler, the exact fields."""
+    return code_digest(type(method).__module__, "methods.fitting", "benchmark.sampler", "benchmark.fields")
+
+
+def extraction_code_digest(method) -> str:
+    """Code an extraction depends on: the method's module (with its extractor and query code)."""
+    return code_digest(type(method).__module__, "benchmark.field_cache")
+
+
+class RunCaches:
+    """The caches of one job: fields, weights and meshes under ``root`` (None: every cache off)."""
+
+    def __init__(self, root: str | Path | None, stats: CacheStats):
+        self.root = Path(root) if root is not None else None
+        self.stats = stats
+        self.fields = FieldCache(self.root / "fields" if self.root is not None else None, stats)
+
+    def _path(self, kind: str, method: str, key: str, suffix: str) -> Path | None:
+        return None if self.root is None else self.root / kind / f"{method}_{key}{suffix}"
+
+    def _read(self, path: Path | None, kind: str) -> bytes | None:
+        if path is None:
+            return None
+        try:
+            data = read_checked(path)
+        except CorruptEntry as exc:
+            self.stats.reject(exc)
+            return None
+        if data is not None:
+            self.stats.hit(kind)
+        return data
+
+    # -- weights ----------------------------------------------------------------------------
+    def load_weights(self, method, key: str, device):
+        """(model, final loss) from the cache, or None (absent or damaged: the caller fits)."""
+        from methods import fitting
+
+        data = self._read(self._path("weights", method.name, key, ".pt"), "weights")
+        return None if data is None else fitting.model_from_bytes(data, device=device, method_name=method.name)
+
+    def save_weights(self, method, key: str, fit, budget) -> None:
+        from methods import fitting
+
+        path = self._path("weights", method.name, key, ".pt")
+        if path is not None:
+            write_checked(path, fitting.model_to_bytes(fit.model, budget, method.name, fit.final_loss))
+
+    # -- meshes -----------------------------------------------------------------------------
+    def load_mesh(self, method: str, key: str):
+        """(vertices, faces, timings, info, fit_loss) from the cache, or None."""
+        data = self._read(self._path("meshes", method, key, ".npz"), "mesh")
+        if data is None:
+            return None
+        with np.load(io.BytesIO(data)) as z:
+            loss = float(z["fit_loss"])
+            return (np.asarray(z["vertices"]), np.asarray(z["faces"]), json.loads(str(z["timings"])),
+                    json.loads(str(z["info"])), None if np.isnan(loss) else loss)
+
+    def save_mesh(self, method: str, key: str, vertices, faces, timings: dict, info: dict, fit_loss) -> None:
+        path = self._path("meshes", method, key, ".npz")
+        if path is None:
+            return
+        buf = io.BytesIO()
+        np.savez(buf, vertices=vertices, faces=faces, timings=json.dumps(timings), info=json.dumps(info),
+                 fit_loss=np.float64(np.nan if fit_loss is None else fit_loss))
+        write_checked(path, buf.getvalue())

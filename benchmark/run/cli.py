@@ -1,0 +1,226 @@
+"""The command line: ``run_benchmark.py [options]`` and ``run_benchmark.py report RUN_DIR ...``.
+
+Exit status: 0 every task ok; 2 refused before any work (bad option, path or name, a run directory
+holding another protocol or in use by another run); 3 the run finished with failed tasks (their
+errors are in the tables and ``results.db``; "N ok, M failed" is the last line).
+
+Where a run's configuration comes from, in order (later wins): the defaults of
+:class:`benchmark.run.config.RunConfig`; ``--config FILE`` (TOML/JSON settings, or a run's
+``config.json``: ``--config runs/X/config.json --out runs/Y`` reproduces run X); with ``--resume``,
+the run directory's saved ``config.json`` instead; the options given on the command line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime as _dt
+import sys
+from pathlib import Path
+from typing import Any, Sequence
+
+from benchmark.run.config import MIN_EVAL_POINTS, MIN_GRID, MODES, ConfigError, RunConfig, import_plugins, resolve
+from benchmark.run.rundir import RunDirectory, check_writable_dir, saved_config
+
+EXIT_OK, EXIT_REFUSED, EXIT_FAILED_TASKS = 0, 2, 3
+RUNS_ROOT = Path("runs")
+
+#: Command-line destination -> RunConfig field (where the names differ).
+_FIELD_OF = {"list": "list_file", "seed": "seeds", "plugin": "plugins", "method_param": "method_params"}
+
+
+class _OneLineParser(argparse.ArgumentParser):
+    """argparse whose errors are one line on stderr (exit status 2)."""
+
+    def error(self, message: str):  # noqa: D401
+        self.exit(EXIT_REFUSED, f"{self.prog}: error: {message}\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _OneLineParser(
+        prog="run_benchmark.py",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=(
+            "Benchmark neural implicit surface representations on CAD meshes.\n"
+            "Jobs = shapes x methods x seeds. Results go to OUT/results.db (SQLite, one row per job,\n"
+            "committed as each job ends), OUT/results.csv, OUT/summary.md|tex, OUT/timing.csv|md,\n"
+            "OUT/report.html and OUT/meshes/<shape>/{gt,<method>}.ply (canonical frame [-1,1]^3).\n"
+            "Re-running into the same --out (or --resume) skips finished jobs and retries failed ones;\n"
+            "a run directory holds one protocol: other settings are refused.\n\n"
+            "Exit status: 0 all ok; 2 refused before any work; 3 finished with failed jobs.\n\n"
+            "Regenerate tables/report from finished runs (several side by side):\n"
+            "  run_benchmark.py report RUN_DIR [RUN_DIR ...] [--out DIR]"
+        ),
+        epilog="Caches (exact fields, fitted weights, extracted meshes) live in $SALSBENCH_CACHE or "
+               "~/.cache/salsbench. SALSBENCH_DEVICE=cpu|cuda forces the torch device.",
+    )
+    a = p.add_argument
+    a("--config", metavar="FILE", help="settings from a TOML/JSON file or a run's config.json (options given "
+                                       "here override it); with --out NEW it reproduces that run")
+    a("--methods", nargs="+", metavar="METHOD", help="methods to run (default: every registered method)")
+    a("--dataset", metavar="NAME", help="dataset: builtin (default; 4 generated CAD-like shapes, no download), "
+                                        "abc, abc-nonmanifold, meshes (any folder of mesh files)")
+    a("--data-dir", dest="data_dir", metavar="DIR", help="folder of mesh files (abc, abc-nonmanifold, meshes)")
+    a("--list", metavar="FILE", help="text file of shape names, one per line (e.g. the SALS ABC test lists)")
+    a("--limit", type=int, metavar="N", help="use only the first N shapes of the dataset")
+    a("--mode", choices=MODES, help="neural (default): fit a network per shape and method, extract from it; "
+                                    "oracle: extract from the exact field (no fitting; isolates extraction error)")
+    a("--budget", metavar="NAME", help="fitting budget, the same for every method: tiny, quick (default; sized so "
+                                       "the default run ends in minutes on 2 CPU cores), paper (100k steps)")
+    a("--grid", type=int, metavar="N", help=f"grid points per axis on [-1,1] (default 128; >= {MIN_GRID}, bounded "
+                                            "by this machine's memory); spacing 2/(N-1) canonical units")
+    a("--eval-points", dest="eval_points", type=int, metavar="N",
+      help=f"surface samples per mesh for the metrics (>= {MIN_EVAL_POINTS}; default: the preset's n, 1,000,000 "
+           "for 'default', 100,000 for 'ndc'); stated in every table caption")
+    a("--metric-preset", dest="metric_preset", metavar="NAME",
+      help="metric protocol: default (canonical frame, Chamfer-L1, F1@0.005/0.01, ECD/EF1) or ndc (NDC's script)")
+    a("--seed", nargs="+", type=int, metavar="S", help="seeds in [0, 2^63) (default 0); each seed is a separate job "
+                                                       "per shape and method (sampling, network init, metric samples)")
+    a("--out", metavar="DIR", help="run directory (default runs/<YYYYmmdd-HHMMSS>); an existing one is continued")
+    a("--resume", action="store_true", help="continue a run with its saved configuration (OUT/config.json; "
+                                            "without --out: the latest run under runs/); options given may add "
+                                            "methods or seeds or change how it runs, never what it computes")
+    a("--executor", help="local (default; in-process, sequential), process (--workers local processes), "
+                         "ray (Ray tasks, local instance or --address cluster)")
+    a("--workers", type=int, metavar="K", help="parallel jobs for process (default: CPU cores) and for a local ray "
+                                               "instance (its CPU count); torch threads per job = max(1, cores // K)")
+    a("--address", metavar="ADDR", help="ray cluster to join: 'auto' (a cluster started with `ray start`) or "
+                                        "host:port; without it a local ray instance is started")
+    a("--gpus-per-job", dest="gpus_per_job", type=float, metavar="F",
+      help="ray: GPUs a fitting job asks for when the cluster has GPUs (default 1; fractions allowed, e.g. 0.5)")
+    a("--cpus-per-job", dest="cpus_per_job", type=float, metavar="C", help="ray: CPUs per job (default 1)")
+    a("--threads", type=int, metavar="T",
+      help="torch CPU threads per job (default: torch's own, i.e. all cores, for local; cores // workers for "
+           "process; --cpus-per-job for ray). On a loaded machine 1 thread can be far faster than 2")
+    a("--retries", type=int, metavar="R", help="times a job whose worker died is retried (default 1); "
+                                               "jobs that raise are recorded failed at once")
+    a("--method-param", dest="method_param", action="append", metavar="METHOD.NAME=VALUE",
+      help="override an extractor parameter, e.g. sals.o_threshold=0.2 or sals.normals=no (repeatable); "
+           "typed and range-checked against the method's parameters")
+    a("--cache-dir", dest="cache_dir", metavar="DIR", help="cache root (default $SALSBENCH_CACHE or ~/.cache/salsbench)")
+    a("--no-cache", dest="no_cache", action="store_const", const=True,
+      help="do not read or write the weights/mesh/field caches")
+    a("--plugin", action="append", metavar="MODULE",
+      help="import MODULE (or MODULE:FUNCTION, then call it) first, in the driver and every worker, "
+           "to register extra methods or datasets (repeatable)")
+    a("--quiet", action="store_const", const=True, help="no progress bar; one line per finished job (CI logs)")
+    return p
+
+
+def parse_method_params(items: Sequence[str] | None, plugins: Sequence[str]) -> dict[str, dict[str, Any]]:
+    """``['sals.o_threshold=0.2']`` -> ``{'sals': {'o_threshold': 0.2}}``, typed by the method's
+    :class:`methods.params.Param` (ConfigError naming the bad item otherwise)."""
+    if not items:
+        return {}
+    import_plugins(plugins)
+    from methods.base import METHODS
+
+    out: dict[str, dict[str, Any]] = {}
+    for item in items:
+        lhs, eq, raw = item.partition("=")
+        method, dot, name = lhs.partition(".")
+        if not (eq and dot and method and name):
+            raise ConfigError(f"--method-param '{item}': use METHOD.NAME=VALUE (e.g. sals.o_threshold=0.2)")
+        try:
+            cls = METHODS.get(method)
+            if name not in cls.parameters:
+                raise ConfigError(f"--method-param '{item}': method '{method}' has no parameter '{name}'; known: "
+                                  f"{', '.join(sorted(cls.parameters)) or 'none'}")
+            out.setdefault(method, {})[name] = cls.parameters[name].parse(raw, f"--method-param {method}.{name}")
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+    return out
+
+
+def _overrides(args: argparse.Namespace, plugins: Sequence[str]) -> dict[str, Any]:
+    """The RunConfig fields given on the command line (paths made absolute)."""
+    cli_only = {"config", "out", "resume"}
+    given = {_FIELD_OF.get(k, k): v for k, v in vars(args).items() if v is not None and k not in cli_only}
+    for key in ("data_dir", "list_file", "cache_dir"):
+        if key in given:
+            given[key] = str(Path(given[key]).expanduser().resolve())
+    if "method_params" in given:
+        given["method_params"] = parse_method_params(given["method_params"], given.get("plugins", plugins))
+    for key in ("methods", "seeds", "plugins"):
+        if key in given:
+            given[key] = tuple(dict.fromkeys(given[key]))
+    return given
+
+
+def latest_run_dir(root: Path = RUNS_ROOT) -> Path | None:
+    runs = sorted(p for p in root.iterdir() if (p / "config.json").is_file()) if root.is_dir() else []
+    return runs[-1] if runs else None
+
+
+def out_dir_of(args: argparse.Namespace) -> Path:
+    if args.out:
+        return Path(args.out)
+    if args.resume:
+        latest = latest_run_dir()
+        if latest is None:
+            raise ConfigError("--resume: no --out given and no earlier run under runs/")
+        return latest
+    return RUNS_ROOT / _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+
+
+def configure(args: argparse.Namespace, run_dir: Path) -> RunConfig:
+    """The configuration of this invocation (module docstring), checked against the directory's.
+
+    Called with the directory locked, so no other driver changes config.json meanwhile.
+    """
+    saved = saved_config(run_dir)
+    if args.resume:
+        if saved is None:
+            raise ConfigError(f"--resume: {run_dir / 'config.json'} does not exist (nothing to resume)")
+        base = saved
+    else:
+        base = RunConfig.load(args.config) if args.config else RunConfig()
+    try:
+        config = RunConfig(**{**base.to_dict(), **_overrides(args, base.plugins)})
+    except TypeError as exc:
+        raise ConfigError(str(exc)) from None
+    if saved is not None:
+        diff = saved.identity_diff(config)
+        if diff:
+            hint = "" if args.resume else " (--resume continues it with its own settings)"
+            raise ConfigError(f"--out {run_dir} holds a run with other settings: {'; '.join(diff)}; "
+                              f"use another --out{hint}")
+        config = saved.merged_scope(config)
+    return config
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] == "report":
+        from benchmark.run.report_cli import report_main
+
+        return report_main(argv[1:])
+    args = build_parser().parse_args(argv)
+    try:
+        out = out_dir_of(args)
+        plan = _plan(args, out)  # every check before the directory is created
+        run_dir = RunDirectory(check_writable_dir(out, "--out"))
+        with run_dir.lock():
+            plan = _plan(args, out)  # again under the lock: another run may have written config.json meanwhile
+            from benchmark.run.driver import run
+            from benchmark.run.provenance import environment_record
+
+            record = {"config": plan.config.to_dict(), "resolved": plan.record(),
+                      "environment": environment_record(),
+                      "command": " ".join([Path(sys.argv[0]).name] + list(argv))}
+            outcome = run(plan, run_dir, record)
+    except ConfigError as exc:
+        print(f"run_benchmark.py: error: {exc}", file=sys.stderr)
+        return EXIT_REFUSED
+    return EXIT_OK if outcome.failed == 0 else EXIT_FAILED_TASKS
+
+
+def _plan(args: argparse.Namespace, out: Path):
+    """The resolved plan of this invocation; its config lists the resolved methods explicitly."""
+    config = configure(args, out)
+    if not config.no_cache:
+        from benchmark.storage import cache_root
+
+        check_writable_dir(cache_root(config.cache_dir), "--cache-dir")
+    plan = resolve(config)
+    return dataclasses.replace(plan, config=dataclasses.replace(config, methods=plan.methods))

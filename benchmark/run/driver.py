@@ -1,0 +1,102 @@
+"""The driver: runs every task of a plan not yet finished in its run directory, one writer only.
+
+Order of work: take the directory's lock (:meth:`RunDirectory.lock`), write ``config.json`` (the
+merged configuration, the resolved plan and the environment), then hand the unfinished tasks to
+the executor and commit each result to ``results.db`` as it arrives (its mesh to
+``meshes/<shape>/<method>.ply``). At the end ``results.csv``, ``floor.csv`` and the reports are
+written (:mod:`benchmark.run.export`). Resume is by key: a task whose key has an ``ok`` row is
+skipped; failed tasks run again.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from benchmark.run.config import Plan
+from benchmark.run.job import TaskResult, failed_from_exception, now_iso, run_task
+from benchmark.run.records import ResultsDB
+from benchmark.run.rundir import RunDirectory
+from benchmark.run.tasks import build_tasks
+
+
+@dataclass(frozen=True)
+class RunOutcome:
+    """How a run ended: the directory; tasks of the plan ok / failed in the database at the end;
+    tasks found done before this invocation."""
+
+    run_dir: Path
+    ok: int
+    failed: int
+    skipped: int
+
+
+def record_result(db: ResultsDB, run_dir: RunDirectory, result: TaskResult, first_seed: int) -> None:
+    """Write the mesh bytes (if any) and commit the row: the driver's only writing path."""
+    spec = result.spec
+    mesh_path = None
+    if result.mesh_ply is not None:
+        stem = "gt" if result.kind == "floor" else (
+            spec.method if spec.seed == first_seed else f"{spec.method}_seed{spec.seed}")
+        mesh_path = run_dir.mesh_relpath(spec.shape, stem)
+        run_dir.write_mesh(mesh_path, result.mesh_ply)
+    common = {"shape": spec.shape, "shape_hash": result.shape_hash, "shape_kind": result.shape_kind,
+              "status": result.status, "error": result.error, "seed": spec.seed, "eval_points": spec.eval_points,
+              "metric_preset": spec.metric_preset, "mesh_path": mesh_path, "finished": result.finished}
+    if result.kind == "floor":
+        db.write_floor({"floor_hash": result.key, "source": result.shape_info.get("source"),
+                        "gt_vertices": result.shape_info.get("gt_vertices"),
+                        "gt_faces": result.shape_info.get("gt_faces"), **common}, result.metrics, result.timings)
+        return
+    db.write_job({
+        "config_hash": result.key, "method": spec.method, "mode": spec.mode, "traceback": result.traceback,
+        "params": spec.params, "budget": spec.budget, "grid": spec.grid, "fit_loss": result.fit_loss,
+        "attempts": result.attempts, "cache": ",".join(result.cache) or None,
+        "cache_rejected": len(result.cache_rejected), "device": result.device, "host": result.host,
+        "versions": result.versions, "info": result.info, "started": result.started, **common,
+    }, result.metrics, result.timings)
+
+
+def run(plan: Plan, run_dir: RunDirectory, record: dict, executor=None) -> RunOutcome:
+    """Run the plan's unfinished tasks into ``run_dir`` (which the caller has locked)."""
+    from benchmark.run.display import Display
+    from benchmark.run.executors import make_executor
+    from benchmark.run.export import export
+
+    config = plan.config
+    record = {**record, "started": now_iso()}
+    run_dir.write_config(record)
+    floors, jobs = build_tasks(plan)
+    db = ResultsDB(run_dir.path / "results.db")
+    done_jobs, done_floors = db.ok_hashes("jobs"), db.ok_hashes("floor")
+    attempts = db.attempts()
+    todo = [f for f in floors if f.key not in done_floors] + [j for j in jobs if j.key not in done_jobs]
+    order = {s: i for i, s in enumerate(plan.shapes)}  # each shape's floor first, shape by shape
+    todo.sort(key=lambda t: (order[t.shape], 0 if t.kind == "floor" else 1))
+    total = len(floors) + len(jobs)
+    skipped = total - len(todo)
+    print(f"salsbench: {len(jobs)} jobs + {len(floors)} floor tasks, {skipped} already done, run dir {run_dir.path}",
+          file=sys.stderr, flush=True)
+    display = Display(total, config.quiet, done=skipped)
+    executor = executor or make_executor(config)
+    t0 = time.perf_counter()
+    try:
+        for spec, outcome in executor.run(run_task, todo, on_stage=display.stage):
+            if isinstance(outcome, BaseException):
+                outcome = failed_from_exception(spec, outcome)
+            if outcome.kind == "job":
+                outcome.attempts = attempts.get(outcome.key, 0) + max(1, outcome.attempts)
+            record_result(db, run_dir, outcome, config.seeds[0])
+            display.finished(outcome)
+    finally:
+        display.close()
+        executor.close()
+        wall = time.perf_counter() - t0
+        export(run_dir.path, db=db, record=run_dir.read_record())
+        ok = len({t.key for t in floors} & db.ok_hashes("floor")) + len({t.key for t in jobs} & db.ok_hashes("jobs"))
+        db.close()
+    print(f"salsbench: {ok} ok, {total - ok} failed ({len(todo)} run now, {skipped} done before) in {wall:.1f} s; "
+          f"results in {run_dir.path}", file=sys.stderr, flush=True)
+    return RunOutcome(run_dir.path, ok, total - ok, skipped)

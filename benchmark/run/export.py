@@ -1,0 +1,91 @@
+"""From ``results.db`` to the files users read: ``results.csv``, ``floor.csv`` and the reports.
+
+``results.csv`` leads with the schema's contract columns (:func:`benchmark.run.schema.csv_lead`),
+then every other metric/timing column; rows in table order (shapes in dataset order, methods in
+display order, seeds). Raw units throughout; the reports apply the preset's multipliers.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from benchmark.run.records import open_run_db
+from benchmark.run.schema import CSV_EXCLUDED, csv_lead
+
+
+def _ordered(df: pd.DataFrame, by: list[tuple[str, list]]) -> pd.DataFrame:
+    """Rows sorted by the given columns, each in the order of its list (unknown values last)."""
+    keys = []
+    for column, values in by:
+        rank = {v: i for i, v in enumerate(values)}
+        keys.append(df[column].map(rank).fillna(len(rank)))
+    if not keys:
+        return df.reset_index(drop=True)
+    order = np.lexsort([k.to_numpy() for k in reversed(keys)])
+    return df.iloc[order].reset_index(drop=True)
+
+
+def table_frame(db, table: str, record: dict[str, Any]) -> pd.DataFrame:
+    """A table of the database as a frame: contract columns first, rows in table order."""
+    df = db.frame(table)
+    lead = csv_lead(table)
+    for col in lead:
+        if col not in df.columns:
+            df[col] = np.nan
+    rest = [c for c in df.columns if c not in lead and c not in CSV_EXCLUDED]
+    df = df[lead + rest]
+    resolved = record.get("resolved", {})
+    by = [("shape", resolved.get("shapes", []))]
+    if table == "jobs":
+        by += [("method", resolved.get("methods", [])), ("seed", record.get("config", {}).get("seeds", []))]
+    return _ordered(df, by)
+
+
+def report_context(record: dict[str, Any]) -> dict[str, Any]:
+    """The flat description of a run the reports read (see ``reports.write_reports``)."""
+    config, resolved, env = record.get("config", {}), record.get("resolved", {}), record.get("environment", {})
+    return {
+        "dataset": config.get("dataset"), "task": config.get("task"), "mode": config.get("mode"),
+        "budget": config.get("budget"), "budget_values": resolved.get("budget"), "grid": config.get("grid"),
+        "seeds": config.get("seeds", []), "methods": resolved.get("methods", []), "shapes": resolved.get("shapes", []),
+        "metric_preset": config.get("metric_preset"), "eval_points": resolved.get("eval_points"),
+        "device": env.get("device"), "cpu_model": env.get("cpu_model"), "gpu": env.get("gpu"),
+        "git_commit": env.get("git_commit"),
+    }
+
+
+def export(run_dir: str | Path, db=None, record: dict[str, Any] | None = None,
+           out_dir: str | Path | None = None) -> dict[str, Any]:
+    """Write results.csv, floor.csv and the reports of a run directory; returns what was written.
+
+    A failure while writing the reports is reported on stderr and never loses results.csv.
+    """
+    import reports
+    from benchmark.run.job import one_line
+    from benchmark.run.rundir import RunDirectory
+
+    run_dir = Path(run_dir)
+    out_dir = Path(out_dir) if out_dir is not None else run_dir
+    out_dir.mkdir(parents=True, exist_ok=True)
+    record = record if record is not None else RunDirectory(run_dir).read_record()
+    own = db is None
+    db = open_run_db(run_dir, must_exist=True) if own else db
+    try:
+        results, floor = table_frame(db, "jobs", record), table_frame(db, "floor", record)
+    finally:
+        if own:
+            db.close()
+    results.to_csv(out_dir / "results.csv", index=False, float_format="%.9g")
+    floor.to_csv(out_dir / "floor.csv", index=False, float_format="%.9g")
+    written: dict[str, Any] = {"results": out_dir / "results.csv", "floor": out_dir / "floor.csv"}
+    try:
+        written["reports"] = reports.write_reports(results, floor, report_context(record), out_dir, run_dir / "meshes")
+    except Exception as exc:  # noqa: BLE001 -- the results are safe in results.db / results.csv
+        print(f"salsbench: writing reports failed: {one_line(exc)}", file=sys.stderr)
+        written["reports"] = None
+    return written

@@ -1,0 +1,261 @@
+"""THE job function: one (shape, method, seed) job, and the floor task of a shape.
+
+:func:`run_task` is what every executor calls. It never raises: any exception becomes a failed
+:class:`TaskResult` with a one-line error (``stage: Type: message``) and the traceback in its own
+field. It never branches on method names: everything method-specific goes through the
+:class:`methods.base.Method` interface.
+
+Stages of a job (each timed by :class:`benchmark.timing.StageTimer` as ``<stage>_s``): ``load`` the
+shape; neural mode: ``sample`` (the shared sampler), ``label`` (``method.training_targets`` on the
+exact fields), ``fit`` (``methods.fitting.fit``, or cached weights), ``query`` (``method.neural_grid``);
+oracle mode: ``query`` (``method.oracle_grid`` on the exact fields); then ``extract``
+(``method.extract``) and ``metrics`` (``benchmark.metrics.evaluate`` against the GT). Randomness comes
+from :func:`benchmark.seeding.job_streams` of (shape content hash, seed).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import socket
+import time
+import traceback as _traceback
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from benchmark.run.tasks import FloorSpec, JobSpec, digest, load_dataset
+from benchmark.storage import CacheStats
+from benchmark.timing import StageTimer, stage
+
+
+@dataclass
+class TaskResult:
+    """What a task returns to the driver (picklable; the mesh travels as PLY bytes).
+
+    status : 'ok' or 'failed'; error : one line; metrics : ``evaluate``'s result (raw units);
+    timings : ``<stage>_s`` seconds; cache : cache kinds served; cache_rejected : damaged entries
+    recomputed; info : scalar facts (fit steps, samples/s, query fraction, intersected edges, ...).
+    """
+
+    kind: str
+    key: str
+    spec: Any
+    status: str = "failed"
+    error: str | None = None
+    traceback: str | None = None
+    metrics: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
+    fit_loss: float | None = None
+    shape_hash: str | None = None
+    shape_kind: str | None = None
+    shape_info: dict = field(default_factory=dict)
+    mesh_ply: bytes | None = None
+    cache: list = field(default_factory=list)
+    cache_rejected: list = field(default_factory=list)
+    info: dict = field(default_factory=dict)
+    device: str | None = None
+    host: str | None = None
+    versions: dict = field(default_factory=dict)
+    started: str | None = None
+    finished: str | None = None
+    attempts: int = 1
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+
+def now_iso() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds")
+
+
+def one_line(exc: BaseException, stage_name: str | None = None) -> str:
+    """``stage: Type: first line of message`` (at most 400 characters)."""
+    msg = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+    text = f"{type(exc).__name__}: {msg}" if msg else type(exc).__name__
+    if stage_name:
+        text = f"{stage_name}: {text}"
+    return text if len(text) <= 400 else text[:397] + "..."
+
+
+def mesh_to_ply(vertices: np.ndarray, faces: np.ndarray) -> bytes:
+    """Binary PLY bytes of a triangle mesh (no processing, no merging)."""
+    import trimesh
+
+    mesh = trimesh.Trimesh(np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64),
+                           process=False, validate=False)
+    return mesh.export(file_type="ply", encoding="binary")
+
+
+def failed_from_exception(spec, exc: BaseException, attempts: int = 1) -> TaskResult:
+    """A failed result for a task whose worker died or whose result never came back."""
+    return TaskResult(kind=spec.kind, key=spec.key, spec=spec, error=one_line(exc, "worker"),
+                      traceback="".join(_traceback.format_exception(exc)), finished=now_iso(), attempts=attempts)
+
+
+class _Progress:
+    """The current stage for error messages, forwarded to the executor's progress callback."""
+
+    def __init__(self, callback: Callable | None):
+        self.callback = callback
+        self.stage = "starting"
+
+    def __call__(self, stage_name: str, **info) -> None:
+        self.stage = stage_name
+        if self.callback is not None:
+            try:
+                self.callback(stage_name, **info)
+            except Exception:  # noqa: BLE001 -- a progress display must never fail a job
+                pass
+
+
+def _run(spec, progress: Callable | None, body: Callable) -> TaskResult:
+    """Common frame of a task: result, timer, worker set-up, failure capture."""
+    from benchmark.run.config import import_plugins
+    from benchmark.run.provenance import package_versions
+    from methods.device import describe_device, get_device, synchronize
+
+    result = TaskResult(kind=spec.kind, key=spec.key, spec=spec, started=now_iso(), host=socket.gethostname())
+    report = _Progress(progress)
+    timer = StageTimer()
+    t0 = time.perf_counter()
+    try:
+        with timer.active():
+            report("loading")
+            import_plugins(spec.plugins)
+            if spec.threads:
+                import torch
+
+                torch.set_num_threads(int(spec.threads))
+            result.versions = package_versions()
+            device = get_device(getattr(spec, "device", None))
+            timer.sync = lambda: synchronize(device)
+            result.device = describe_device(device)
+            with stage("load"):
+                shape = load_dataset(spec.dataset, spec.dataset_options).load(spec.shape)
+            result.shape_hash, result.shape_kind = shape.content_hash, shape.kind
+            body(spec, shape, device, timer, result, report)
+            result.status = "ok"
+    except Exception as exc:  # noqa: BLE001 -- every failure becomes a failed row, the run goes on
+        result.status = "failed"
+        result.error = one_line(exc, report.stage)
+        result.traceback = _traceback.format_exc()
+    timer.add("total_s", time.perf_counter() - t0)
+    result.timings = dict(timer.seconds)
+    result.finished = now_iso()
+    return result
+
+
+def _score(score: Callable, spec, shape, pred_V, pred_F, result: TaskResult, report: _Progress) -> None:
+    """``score`` (metrics.evaluate or metrics.floor) against the GT with the job's metric stream."""
+    from benchmark.seeding import job_streams
+
+    report("scoring")
+    with stage("metrics"):
+        scores = score(shape.vertices, shape.faces, pred_V, pred_F, preset=spec.metric_preset,
+                       seed=job_streams(shape.content_hash, spec.seed).metrics, n_points=spec.eval_points)
+    scores.pop("seconds", None)
+    result.metrics = scores
+    report("saving")
+    result.mesh_ply = mesh_to_ply(pred_V, pred_F)
+
+
+#: Timing keys a cached mesh replays (the stages that produced it).
+_REPLAYED = ("load_s", "metrics_s")
+
+
+def _job_body(spec: JobSpec, shape, device, timer: StageTimer, result: TaskResult, report: _Progress) -> None:
+    import dataclasses
+
+    from benchmark import metrics
+    from benchmark.run.cache import RunCaches, extraction_code_digest, fit_code_digest
+    from methods.base import get_method
+
+    method = get_method(spec.method, **spec.params)
+    stats = CacheStats()
+    caches = RunCaches(spec.cache_dir, stats)
+    weights_key = None
+    if spec.mode == "neural":
+        from methods.fitting import get_budget
+
+        weights_key = digest({"shape": result.shape_hash, "method": spec.method, "input": method.input_kind,
+                              "output_dim": method.output_dim, "budget": dataclasses.asdict(get_budget(spec.budget)),
+                              "seed": spec.seed, "code": fit_code_digest(method)})
+    mesh_key = digest({"shape": result.shape_hash, "method": spec.method, "params": method.params, "mode": spec.mode,
+                       "grid": spec.grid, "weights": weights_key, "code": extraction_code_digest(method)})
+    cached = caches.load_mesh(spec.method, mesh_key)
+    if cached is not None:
+        pred_V, pred_F, timings, info, result.fit_loss = cached
+        for key, seconds in timings.items():  # the stage times of the job that computed the mesh
+            timer.add(key, seconds)
+        result.info.update(info)
+    else:
+        grid_field, facts = _grid_field(spec, method, shape, device, caches, weights_key, result, report)
+        report("extracting")
+        with stage("extract"):
+            extraction = method.extract(grid_field, spec.grid)
+        result.info.update(facts)
+        result.info.update({k: v for k, v in extraction.info.items() if isinstance(v, (int, float, str, bool))})
+        pred_V = np.asarray(extraction.vertices, dtype=np.float64)
+        pred_F = np.asarray(extraction.faces, dtype=np.int64)
+        timings = {k: v for k, v in timer.seconds.items() if k not in _REPLAYED}
+        caches.save_mesh(spec.method, mesh_key, pred_V, pred_F, timings, result.info, result.fit_loss)
+    result.cache, result.cache_rejected = list(stats.hits), list(stats.rejected)
+    _score(metrics.evaluate, spec, shape, pred_V, pred_F, result, report)
+
+
+def _grid_field(spec: JobSpec, method, shape, device, caches, weights_key, result: TaskResult, report: _Progress):
+    """Neural: sample, label, fit (or cached weights), query; oracle: the exact field on the grid."""
+    from benchmark.fields import ExactFields
+
+    fields = ExactFields(shape.vertices, shape.faces)
+    if spec.mode == "oracle":
+        report("querying")
+        with stage("query"):
+            return method.oracle_grid(fields, spec.grid, caches.fields)
+    cached = caches.load_weights(method, weights_key, device)
+    if cached is not None:
+        model, result.fit_loss = cached
+    else:
+        model = _fit(spec, method, shape, fields, device, caches, weights_key, result, report)
+    report("querying")
+    with stage("query"):
+        return method.neural_grid(model, spec.grid, device)
+
+
+def _fit(spec, method, shape, fields, device, caches, weights_key, result: TaskResult, report: _Progress):
+    from benchmark.sampler import sample_training_data
+    from benchmark.seeding import job_streams
+    from methods import fitting
+
+    budget = fitting.get_budget(spec.budget)
+    streams = job_streams(shape.content_hash, spec.seed)
+    report("sampling")
+    with stage("sample"):
+        samples = sample_training_data(shape.vertices, shape.faces, budget.num_samples, streams.sampler_rng())
+    report("labelling")
+    with stage("label"):
+        targets = method.training_targets(fields, samples)
+    report("fitting")
+    with stage("fit"):
+        fit = fitting.fit(method, samples, targets, budget, seed=streams.fitting_seed(), device=device,
+                          progress=lambda step, loss: report("fitting", step=step, loss=loss))
+    result.fit_loss = fit.final_loss
+    result.info.update(fit_steps=fit.iterations, fit_samples_per_s=fit.samples_per_s)
+    caches.save_weights(method, weights_key, fit, budget)
+    return fit.model
+
+
+def _floor_body(spec: FloorSpec, shape, device, timer: StageTimer, result: TaskResult, report: _Progress) -> None:
+    from benchmark import metrics
+
+    result.shape_info = {"source": str(shape.source), "gt_vertices": int(len(shape.vertices)),
+                         "gt_faces": int(len(shape.faces))}
+    _score(lambda V, F, _V, _F, **kw: metrics.floor(V, F, **kw), spec, shape, shape.vertices, shape.faces,
+           result, report)
+
+
+def run_task(spec, progress: Callable[..., None] | None = None) -> TaskResult:
+    """Run a job or a floor task end to end; never raises (the single entry point of every executor)."""
+    return _run(spec, progress, _floor_body if isinstance(spec, FloorSpec) else _job_body)

@@ -1,0 +1,52 @@
+"""``run_benchmark.py report RUN_DIR [RUN_DIR ...] [--out DIR]``: tables and report.html again from
+finished runs' ``results.db``; several runs side by side."""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import sys
+from pathlib import Path
+from typing import Sequence
+
+
+def build_report_parser() -> argparse.ArgumentParser:
+    from benchmark.run.cli import _OneLineParser
+
+    p = _OneLineParser(prog="run_benchmark.py report",
+                       description="Regenerate results.csv, tables and report.html from run directories' "
+                                   "results.db; with several runs, put them side by side.")
+    p.add_argument("runs", nargs="+", metavar="RUN_DIR", help="run directories (each holds results.db)")
+    p.add_argument("--out", metavar="DIR", help="where to write (default: the run directory itself; for several "
+                                                "runs: runs/compare-<timestamp>)")
+    return p
+
+
+def report_main(argv: Sequence[str]) -> int:
+    import reports
+    from benchmark.run.export import export, report_context, table_frame
+    from benchmark.run.records import open_run_db
+    from benchmark.run.rundir import RunDirectory
+
+    args = build_report_parser().parse_args(list(argv))
+    for r in args.runs:
+        if not (Path(r) / "results.db").is_file():
+            print(f"run_benchmark.py report: error: {r}: no results.db (not a salsbench run directory)", file=sys.stderr)
+            return 2
+    if len(args.runs) == 1:
+        written = export(Path(args.runs[0]), out_dir=Path(args.out) if args.out else None)
+        print(f"wrote {written['results']}", file=sys.stderr)
+        return 0
+    out = Path(args.out) if args.out else Path("runs") / _dt.datetime.now().strftime("compare-%Y%m%d-%H%M%S")
+    runs = []
+    for r in args.runs:
+        run_dir = Path(r)
+        record = RunDirectory(run_dir).read_record()
+        with open_run_db(run_dir, must_exist=True) as db:
+            runs.append({"name": run_dir.name, "results": table_frame(db, "jobs", record),
+                         "floor": table_frame(db, "floor", record), "context": report_context(record),
+                         "meshes_dir": run_dir / "meshes"})
+    out.mkdir(parents=True, exist_ok=True)
+    reports.compare_runs(runs, out)
+    print(f"wrote comparison of {len(runs)} runs to {out}", file=sys.stderr)
+    return 0

@@ -1,0 +1,129 @@
+"""Tasks of a run: plain, picklable descriptions that any executor can run anywhere.
+
+A run is ``shapes x methods x seeds`` :class:`JobSpec` (one per job) plus one :class:`FloorSpec`
+per shape (the GT scored against a resample of itself; it also exports ``meshes/<shape>/gt.ply``).
+A task's :attr:`key` is the digest of its :meth:`identity` (everything that defines its result):
+the results database's primary key, so a finished task is never run twice.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, field
+from functools import lru_cache
+from typing import Any
+
+from benchmark.serialize import dumps
+
+
+def digest(obj: Any) -> str:
+    """SHA-256 (hex, 16 chars) of a JSON-able object with sorted keys."""
+    return hashlib.sha256(dumps(obj).encode()).hexdigest()[:16]
+
+
+@lru_cache(maxsize=8)
+def _dataset_cached(name: str, options_json: str):
+    from datasets import get_dataset
+
+    return get_dataset(name, **json.loads(options_json))
+
+
+def load_dataset(name: str, options: dict):
+    """The dataset ``name`` built with ``options`` (cached per process)."""
+    return _dataset_cached(name, json.dumps(options, sort_keys=True))
+
+
+def identity_options(options: dict) -> dict:
+    """Dataset options that change which mesh a shape name denotes (not limit/list_file)."""
+    return {k: v for k, v in sorted(options.items()) if k not in ("limit", "list_file")}
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    """What every task carries: the dataset and shape, the metric protocol, worker settings."""
+
+    dataset: str
+    dataset_options: dict
+    shape: str
+    eval_points: int | None
+    metric_preset: str
+    seed: int
+    plugins: tuple[str, ...] = ()
+    threads: int | None = None
+
+    kind = "task"
+    uses_fitting = False
+
+    def identity(self) -> dict:
+        return {"kind": self.kind, "dataset": self.dataset, "dataset_options": identity_options(self.dataset_options),
+                "shape": self.shape, "eval_points": self.eval_points, "metric_preset": self.metric_preset,
+                "seed": self.seed}
+
+    @property
+    def key(self) -> str:
+        return digest(self.identity())
+
+
+@dataclass(frozen=True)
+class FloorSpec(TaskSpec):
+    """The floor task of one shape: GT vs a resample of itself (first seed); exports the GT mesh."""
+
+    kind = "floor"
+
+    @property
+    def label(self) -> str:
+        return f"{self.shape}/floor"
+
+
+@dataclass(frozen=True)
+class JobSpec(TaskSpec):
+    """One (shape, method, seed) job.
+
+    method, params : registry name and full, typed extractor parameters. mode : 'neural' or 'oracle'.
+    budget : fitting budget name (None in oracle mode). grid : N. cache_dir : cache root (None: off).
+    device : torch device (None: automatic).
+    """
+
+    method: str = ""
+    params: dict = field(default_factory=dict)
+    mode: str = "neural"
+    budget: str | None = None
+    grid: int = 128
+    cache_dir: str | None = None
+    device: str | None = None
+
+    kind = "job"
+
+    def identity(self) -> dict:
+        return {**super().identity(), "method": self.method, "params": self.params, "mode": self.mode,
+                "budget": self.budget, "grid": self.grid}
+
+    @property
+    def uses_fitting(self) -> bool:
+        """True when the job trains a network (asks an executor for a GPU when there is one)."""
+        return self.mode == "neural"
+
+    @property
+    def label(self) -> str:
+        return f"{self.shape}/{self.method}/s{self.seed}"
+
+
+def build_tasks(plan) -> tuple[list[FloorSpec], list[JobSpec]]:
+    """Floor tasks (one per shape, first seed) and jobs (shapes x methods x seeds, table order)."""
+    c = plan.config
+    common = dict(dataset=c.dataset, dataset_options=plan.dataset_options, eval_points=c.eval_points,
+                  metric_preset=c.metric_preset, plugins=c.plugins, threads=c.threads)
+    floors = [FloorSpec(shape=s, seed=c.seeds[0], **common) for s in plan.shapes]
+    cache_dir = None if c.no_cache else str(cache_root_of(c))
+    jobs = [JobSpec(shape=s, seed=seed, method=m, params=plan.method_params[m], mode=c.mode, budget=c.budget,
+                    grid=c.grid, cache_dir=cache_dir, **common)
+            for s in plan.shapes for m in plan.methods for seed in c.seeds]
+    return floors, jobs
+
+
+def cache_root_of(config):
+    """The cache root of a config (``--cache-dir``, else ``$SALSBENCH_CACHE``, else the home default)."""
+    from benchmark.storage import cache_root
+
+    return cache_root(config.cache_dir)

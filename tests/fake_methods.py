@@ -1,0 +1,92 @@
+"""Test-only methods for the run-layer tests: marching cubes on the exact SDF / occupancy, one whose
+extractor raises and one whose loss is NaN. Registered by :func:`register_fakes`, which workers
+import with ``--plugin tests.fake_methods:register_fakes``; tests use the ``fakes`` fixture of
+conftest, which removes them again."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from methods.base import METHODS, Extraction, Method
+from methods.params import Param
+
+PLUGIN = "tests.fake_methods:register_fakes"
+
+
+class _FakeGridMethod(Method):
+    input_kind = "points"
+    output_dim = 1
+    extractor = "marching cubes"
+    kind = "sdf"
+
+    def training_targets(self, fields, samples):
+        return {"target": np.asarray(getattr(fields, self.kind)(samples.points), dtype=np.float32)}
+
+    def loss(self, prediction, targets, inputs=None, model=None):
+        import torch
+
+        target = targets["target"].reshape(prediction.shape)
+        if self.kind == "sdf":
+            return torch.abs(prediction.clamp(-0.1, 0.1) - target.clamp(-0.1, 0.1)).mean()
+        return torch.nn.functional.binary_cross_entropy_with_logits(prediction, target)
+
+    def neural_grid(self, model, N, device):
+        from methods import query
+
+        values = query.dense_grid_points(model, N, device)[..., 0]
+        if self.kind == "occupancy":
+            values = 1.0 / (1.0 + np.exp(-values))
+        return values, {}
+
+    def oracle_grid(self, fields, N, cache):
+        return cache.get(fields, N, self.kind), {}
+
+    def extract(self, grid_field, N):
+        from methods.marching_cubes import marching_cubes_grid
+
+        if self.kind == "sdf":
+            V, F = marching_cubes_grid(grid_field, self.params["level"], inside="low")
+        else:
+            V, F = marching_cubes_grid(np.asarray(grid_field, dtype=np.float32), 0.5, inside="high")
+        return Extraction(V, F)
+
+
+class FakeSDF(_FakeGridMethod):
+    name = "test_sdf"
+    description = "test-only: marching cubes on the exact SDF"
+    display_order = 1
+    parameters = {"level": Param(0.0, "iso level", gt=-0.1, lt=0.1)}
+
+
+class FakeOcc(_FakeGridMethod):
+    name = "test_occ"
+    description = "test-only: marching cubes on the exact occupancy"
+    kind = "occupancy"
+    display_order = 2
+
+
+class FakeBroken(_FakeGridMethod):
+    name = "test_broken"
+    description = "test-only: its extractor always raises"
+    display_order = 3
+
+    def extract(self, grid_field, N):
+        raise RuntimeError("boom: extractor failed\nsecond line")
+
+
+class FakeNaN(FakeSDF):
+    name = "test_nan"
+    description = "test-only: its training loss is NaN"
+    display_order = 4
+
+    def loss(self, prediction, targets, inputs=None, model=None):
+        return super().loss(prediction, targets) * float("nan")
+
+
+FAKES = (FakeSDF, FakeOcc, FakeBroken, FakeNaN)
+
+
+def register_fakes() -> None:
+    """Register the test-only methods (idempotent; also called in worker processes)."""
+    for cls in FAKES:
+        METHODS.register(cls.name, cls)

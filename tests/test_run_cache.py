@@ -1,0 +1,66 @@
+"""The run layer's caches (benchmark.run.cache): code digests follow the imports, damaged entries
+are recomputed and counted, never used (issue 11.4)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from benchmark.run.cache import RunCaches, code_digest
+from benchmark.run.cli import main
+from benchmark.storage import CacheStats
+from tests.fake_methods import PLUGIN
+
+
+def test_code_digest_follows_imports_and_refuses_missing_modules(tmp_path, monkeypatch):
+    import benchmark
+
+    pkg = tmp_path / "benchmark_extra"
+    monkeypatch.setattr(benchmark, "__path__", [*benchmark.__path__, str(pkg)])
+    pkg.mkdir()
+    (pkg / "zz_probe_a.py").write_text("def f():\n    from benchmark import zz_probe_b\n")
+    (pkg / "zz_probe_b.py").write_text("X = 1\n")
+    code_digest.cache_clear()
+    first = code_digest("benchmark.zz_probe_a")
+    (pkg / "zz_probe_b.py").write_text("X = 2\n")  # a module imported lazily, inside a function
+    code_digest.cache_clear()
+    assert code_digest("benchmark.zz_probe_a") != first
+    (pkg / "zz_probe_b.py").unlink()  # renamed away: never silently counted as empty
+    code_digest.cache_clear()
+    with pytest.raises(ModuleNotFoundError, match="imports 'benchmark.zz_probe_b', which does not exist"):
+        code_digest("benchmark.zz_probe_a")
+    code_digest.cache_clear()
+
+
+def test_damaged_mesh_entry_is_recomputed_and_counted(tmp_path):
+    stats = CacheStats()
+    caches = RunCaches(tmp_path, stats)
+    V, F = np.random.default_rng(0).random((4, 3)), np.array([[0, 1, 2], [0, 2, 3]])
+    caches.save_mesh("m", "k", V, F, {"query_s": 1.0}, {"n": 1}, 0.5)
+    got = caches.load_mesh("m", "k")
+    assert np.array_equal(got[0], V) and got[2] == {"query_s": 1.0} and got[4] == 0.5 and stats.hits == ["mesh"]
+    path = tmp_path / "meshes" / "m_k.npz"
+    data = bytearray(path.read_bytes())
+    data[-100:-36] = bytes(64)  # 64 bytes zeroed inside the payload
+    path.write_bytes(bytes(data))
+    assert caches.load_mesh("m", "k") is None and len(stats.rejected) == 1 and "checksum mismatch" in stats.rejected[0]
+
+
+def test_damaged_weights_are_refitted_not_used(fakes, tmp_path):
+    """Issue 11.4: flipping 64 bytes of a cached .pt used to load silently (SDF CD 0.127 -> 0.529)."""
+    cache = tmp_path / "cache"
+    args = ["--methods", "test_sdf", "--mode", "neural", "--budget", "tiny", "--grid", "24", "--eval-points", "5000",
+            "--limit", "1", "--cache-dir", str(cache), "--plugin", PLUGIN, "--quiet", "--threads", "1"]
+    assert main(args + ["--out", str(tmp_path / "a")]) == 0
+    for mesh in (cache / "meshes").iterdir():  # force the next run back to the weights
+        mesh.unlink()
+    (weights,) = (cache / "weights").iterdir()
+    data = bytearray(weights.read_bytes())
+    middle = len(data) // 2
+    data[middle:middle + 64] = bytes(b ^ 0xFF for b in data[middle:middle + 64])
+    weights.write_bytes(bytes(data))
+    assert main(args + ["--out", str(tmp_path / "b")]) == 0
+    a, b = (pd.read_csv(tmp_path / r / "results.csv").iloc[0] for r in ("a", "b"))
+    assert b["cache_rejected"] == 1 and b["fit_s"] > 0        # refitted, and the damage counted
+    assert b["cd"] == a["cd"] and b["fit_loss"] == a["fit_loss"]  # the same fit as the first time

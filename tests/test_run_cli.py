@@ -1,0 +1,364 @@
+"""Whole runs through the command line (benchmark.run.cli, run_benchmark.py): bad options refused
+with one line before any work, the output contract, failures and exit codes, resume, one protocol
+and one writer per run directory, caches, reproduction from config.json and the report subcommand.
+
+Runs use the test-only methods of tests/fake_methods.py on the exact fields (oracle mode), so they
+do not depend on the real methods' fitting budgets.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+import sqlite3
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from benchmark.run.cli import EXIT_FAILED_TASKS, EXIT_REFUSED, main
+from benchmark.run.schema import csv_lead
+from tests.fake_methods import PLUGIN
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def oracle_args(out: Path, cache: Path, *extra: str) -> list[str]:
+    return ["--methods", "test_sdf", "test_occ", "--mode", "oracle", "--grid", "32", "--eval-points", "20000",
+            "--limit", "2", "--out", str(out), "--cache-dir", str(cache), "--plugin", PLUGIN, "--quiet", *extra]
+
+
+def read_results(out: Path) -> pd.DataFrame:
+    return pd.read_csv(out / "results.csv")
+
+
+def one_error_line(capsys) -> str:
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    return err
+
+
+# ---------------------------------------------------------------------------------------------
+# refused up front: one line, exit 2, nothing created
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--methods", "nope"], "unknown method 'nope'; known methods: test_sdf"),
+    (["--grid", "4"], "--grid must be >= 8"),
+    (["--grid", "100000"], "more than this machine's"),                     # issue 11.8: bounded by memory
+    (["--eval-points", "10"], "--eval-points must be >= 1000"),
+    (["--dataset", "meshes", "--data-dir", "/no/such/dir"], "--data-dir /no/such/dir: does not exist"),
+    (["--list", "/no/such/list.txt"], "--list /no/such/list.txt: does not exist"),
+    (["--dataset", "nosuch"], "unknown dataset 'nosuch'"),
+    (["--method-param", "test_sdf.nope=1"], "has no parameter 'nope'"),
+    (["--method-param", "bogus"], "METHOD.NAME=VALUE"),
+    (["--method-param", "test_sdf.level=notanumber"], "expected float"),   # issue 11.7
+    (["--method-param", "test_sdf.level=0.5"], "expected float in (-0.1, 0.1)"),
+    (["--seed", "-1"], "--seed values must lie in [0, 2^63)"),             # issue 11.9
+    (["--seed", str(2**63)], "--seed values must lie in [0, 2^63)"),
+    (["--workers", "0"], "--workers must be >= 1"),
+    (["--executor", "cluster"], "unknown executor"),
+    (["--address", "auto"], "--address only applies to --executor ray"),
+    (["--limit", "0"], "--limit must be >= 1"),
+    (["--plugin", "no_such_module_xyz"], "--plugin no_such_module_xyz"),
+])
+def test_bad_options_fail_with_one_line_before_any_work(fakes, tmp_path, capsys, args, message):
+    out = tmp_path / "run"
+    base = ["--methods", "test_sdf", "--mode", "oracle", "--out", str(out), "--plugin", PLUGIN]
+    assert main(base + args) == EXIT_REFUSED
+    assert message in one_error_line(capsys)
+    assert not out.exists()  # nothing was started
+
+
+@pytest.mark.parametrize("text, ok", [("no", False), ("False", False), ("0", False), ("off", False),
+                                      ("YES", True), ("true", True), ("1", True), ("maybe", None)])
+def test_boolean_method_params_parse_as_booleans(tmp_path, capsys, text, ok):
+    """Issue 11.7: sals.normals=False used to be True (any non-empty string)."""
+    from benchmark.run.cli import parse_method_params
+
+    if ok is None:
+        with pytest.raises(ValueError, match="expected bool"):
+            parse_method_params([f"sals.normals={text}"], ())
+    else:
+        assert parse_method_params([f"sals.normals={text}"], ()) == {"sals": {"normals": ok}}
+
+
+def test_paths_that_cannot_be_written_are_one_line(fakes, tmp_path, capsys):
+    """Issue 11.10: --out under a file, --cache-dir that is a file."""
+    a_file = tmp_path / "file.txt"
+    a_file.write_text("x")
+    assert main(oracle_args(a_file / "run", tmp_path / "cache")) == EXIT_REFUSED
+    assert "is a file, not a directory" in one_error_line(capsys)
+    assert main(oracle_args(a_file, tmp_path / "cache")) == EXIT_REFUSED
+    assert "exists and is not a directory" in one_error_line(capsys)
+    assert main(oracle_args(tmp_path / "run", a_file)) == EXIT_REFUSED
+    assert "--cache-dir" in one_error_line(capsys)
+
+
+def test_unwritable_out_dir_is_one_line(fakes, tmp_path, capsys, monkeypatch):
+    """Issue 11.10: a read-only --out (simulated: the suite may run as root, who can write anywhere)."""
+    import errno
+
+    real_write = Path.write_bytes
+
+    def refuse(self, data):
+        if self.name.startswith(".salsbench-write-test"):
+            raise OSError(errno.EROFS, "Read-only file system")
+        return real_write(self, data)
+
+    monkeypatch.setattr(Path, "write_bytes", refuse)
+    assert main(oracle_args(tmp_path / "run", tmp_path / "cache")) == EXIT_REFUSED
+    assert "not writable (read-only file system)" in one_error_line(capsys)
+
+
+def test_help_and_bad_flag_through_the_script():
+    py = sys.executable
+    proc = subprocess.run([py, "run_benchmark.py", "--help"], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0
+    for option in ("--methods", "--dataset", "--grid", "--eval-points", "--executor", "--resume", "--config"):
+        assert option in proc.stdout
+    proc = subprocess.run([py, "run_benchmark.py", "--grid", "3", "--mode", "oracle"], cwd=REPO,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and proc.stderr.strip().count("\n") == 0 and "--grid" in proc.stderr
+
+
+# ---------------------------------------------------------------------------------------------
+# a whole run: contract, failures, exit codes
+# ---------------------------------------------------------------------------------------------
+
+
+def test_oracle_run_writes_the_contract(fakes, tmp_path):
+    out, cache = tmp_path / "run", tmp_path / "cache"
+    assert main(oracle_args(out, cache)) == 0
+    df = read_results(out)
+    assert list(df.columns[: len(csv_lead())]) == csv_lead()
+    assert len(df) == 4 and (df.status == "ok").all()
+    record = json.loads((out / "config.json").read_text())
+    shapes = record["resolved"]["shapes"]
+    assert len(shapes) == 2
+    assert list(df["shape"]) == [shapes[0]] * 2 + [shapes[1]] * 2          # table order: shape, then method
+    assert list(df["method"]) == ["test_sdf", "test_occ"] * 2
+    h = 2 / 31  # exact-field marching cubes on a 32^3 grid: within a fraction of a cell of the GT
+    assert (df["cd"] < h).all() and (df["cd"] > 0).all()
+    assert (df["n_faces"] > 100).all() and (df["extract_s"] >= 0).all() and (df["metrics_s"] > 0).all()
+    assert (df["query_s"] > 0).all() and df["fit_s"].isna().all()          # oracle mode fits nothing
+    import trimesh
+
+    for r in df.itertuples():
+        mesh = trimesh.load(out / "meshes" / r.shape / f"{r.method}.ply", process=False)
+        assert len(mesh.faces) == r.n_faces and len(mesh.vertices) == r.n_vertices
+        assert np.abs(mesh.vertices).max() <= 1.0
+    for s in shapes:
+        assert (out / "meshes" / s / "gt.ply").is_file()
+    floor = pd.read_csv(out / "floor.csv")
+    assert list(floor["shape"]) == shapes and (floor["status"] == "ok").all()
+    assert (floor["cd"] < df.groupby("shape")["cd"].min().reindex(shapes).to_numpy()).all()  # GT vs itself is best
+    assert record["config"]["grid"] == 32 and record["config"]["methods"] == ["test_sdf", "test_occ"]
+    assert record["resolved"]["eval_points"] == 20000 and "F1 thresholds" in record["resolved"]["protocol"]
+    env = record["environment"]
+    assert {"numpy", "torch", "trimesh", "scipy", "pandas"} <= set(env["versions"]) and "cpu_model" in env
+    with sqlite3.connect(out / "results.db") as con:
+        n, hashes = con.execute("SELECT count(*), count(DISTINCT config_hash) FROM jobs").fetchone()
+    assert n == hashes == 4
+
+
+def test_failing_job_is_recorded_the_run_goes_on_and_the_exit_says_so(fakes, tmp_path, capsys):
+    """Issue 11.6: the last line counts ok and failed jobs and the exit status is 3."""
+    out, cache = tmp_path / "run", tmp_path / "cache"
+    args = oracle_args(out, cache)
+    args[args.index("test_occ")] = "test_broken"
+    assert main(args) == EXIT_FAILED_TASKS
+    assert "salsbench: 4 ok, 2 failed" in capsys.readouterr().err.strip().splitlines()[-1]  # 2 floors + 2 jobs ok
+    df = read_results(out)
+    ok, failed = df[df.method == "test_sdf"], df[df.method == "test_broken"]
+    assert (ok.status == "ok").all() and len(ok) == 2
+    assert (failed.status == "failed").all() and len(failed) == 2
+    assert (failed.error == "extracting: RuntimeError: boom: extractor failed").all()  # one line, with the stage
+    assert failed.cd.isna().all()
+    with sqlite3.connect(out / "results.db") as con:
+        tb = con.execute("SELECT traceback FROM jobs WHERE status='failed'").fetchone()[0]
+    assert "second line" in tb and "Traceback" in tb
+
+
+def test_every_job_failing_is_a_nonzero_exit_through_the_script(tmp_path):
+    proc = subprocess.run([sys.executable, "run_benchmark.py", *oracle_args(tmp_path / "run", tmp_path / "c"),
+                           "--methods", "test_broken"], cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == EXIT_FAILED_TASKS
+    assert proc.stderr.strip().splitlines()[-1].startswith("salsbench: 2 ok, 2 failed")  # the floors are ok
+
+
+# ---------------------------------------------------------------------------------------------
+# resume, one protocol per directory, one writer at a time
+# ---------------------------------------------------------------------------------------------
+
+
+def test_rerun_skips_finished_jobs_and_retries_failed(fakes, tmp_path):
+    out, cache = tmp_path / "run", tmp_path / "cache"
+    assert main(oracle_args(out, cache, "--no-cache")) == 0
+    before = read_results(out).set_index(["shape", "method"])
+    with sqlite3.connect(out / "results.db") as con:  # pretend one job failed
+        con.execute("UPDATE jobs SET status='failed', cd=NULL WHERE rowid = (SELECT min(rowid) FROM jobs)")
+    assert main(["--resume", "--out", str(out), "--quiet"]) == 0
+    after = read_results(out).set_index(["shape", "method"])
+    assert (after.status == "ok").all() and len(after) == 4
+    rerun = after.finished != before.finished
+    assert rerun.sum() == 1                                          # only the failed job ran again
+    assert int(after.loc[rerun, "attempts"].iloc[0]) == 2
+    pd.testing.assert_series_equal(after.cd, before.cd)               # and reproduced its numbers exactly
+
+
+def test_second_resume_keeps_the_saved_configuration(fakes, tmp_path):
+    """Issue 11.1: after one --resume, the next one used to run the defaults (builtin, neural, all methods)."""
+    out, cache = tmp_path / "run", tmp_path / "cache"
+    assert main(oracle_args(out, cache)) == 0
+    saved = json.loads((out / "config.json").read_text())["config"]
+    for _ in range(2):
+        assert main(["--resume", "--out", str(out), "--quiet"]) == 0
+        assert json.loads((out / "config.json").read_text())["config"] == saved
+    df = read_results(out)
+    assert len(df) == 4 and set(df.method) == {"test_sdf", "test_occ"} and (df["mode"] == "oracle").all()
+
+
+def test_a_different_protocol_is_refused_naming_the_settings(fakes, tmp_path, capsys):
+    """Issue 11.2: --resume --grid 32 on a grid-64 run used to mix both in one table."""
+    out, cache = tmp_path / "run", tmp_path / "cache"
+    assert main(oracle_args(out, cache)) == 0
+    capsys.readouterr()
+    assert main(["--resume", "--out", str(out), "--grid", "40", "--eval-points", "30000"]) == EXIT_REFUSED
+    line = one_error_line(capsys)
+    assert "grid=32 there, 40 now" in line and "eval_points=20000 there, 30000 now" in line
+    args = oracle_args(out, cache)
+    args[args.index("32")] = "40"
+    assert main(args) == EXIT_REFUSED  # without --resume too
+    assert "--resume continues it" in one_error_line(capsys)
+    with sqlite3.connect(out / "results.db") as con:
+        assert {r[0] for r in con.execute("SELECT DISTINCT grid FROM jobs")} == {32}
+
+
+def test_adding_a_method_to_a_run_keeps_its_protocol(fakes, tmp_path):
+    out, cache = tmp_path / "run", tmp_path / "cache"
+    args = oracle_args(out, cache)
+    args.remove("test_occ")
+    assert main(args) == 0
+    assert main(["--resume", "--out", str(out), "--methods", "test_occ", "--quiet"]) == 0
+    df = read_results(out)
+    assert list(df.method) == ["test_sdf", "test_occ"] * 2
+    assert json.loads((out / "config.json").read_text())["config"]["methods"] == ["test_sdf", "test_occ"]
+
+
+def test_a_locked_run_directory_is_refused_naming_its_holder(fakes, tmp_path, capsys):
+    """Issue 11.3: two runs into one --out used to both write."""
+    out = tmp_path / "run"
+    out.mkdir()
+    fd = os.open(out / ".salsbench.lock", os.O_RDWR | os.O_CREAT)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        os.write(fd, b"pid 4242 on otherhost (run_benchmark.py --grid 64, since yesterday)")
+        assert main(oracle_args(out, tmp_path / "cache")) == EXIT_REFUSED
+        assert "is in use by pid 4242 on otherhost" in one_error_line(capsys)
+        assert not (out / "results.db").exists()
+    finally:
+        os.close(fd)
+    assert main(oracle_args(out, tmp_path / "cache")) == 0  # released: the next run goes ahead
+
+
+def test_concurrent_runs_into_one_directory_do_not_mix(tmp_path):
+    out = tmp_path / "run"
+    cmd = [sys.executable, "run_benchmark.py", *oracle_args(out, tmp_path / "c")]
+    other = list(cmd)
+    other[other.index("32")] = "40"
+    procs = [subprocess.Popen(c, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+             for c in (cmd, other)]
+    codes = sorted(p.wait(timeout=600) for p in procs)
+    assert codes == [0, EXIT_REFUSED]
+    with sqlite3.connect(out / "results.db") as con:
+        assert len({r[0] for r in con.execute("SELECT DISTINCT grid FROM jobs")}) == 1
+
+
+# ---------------------------------------------------------------------------------------------
+# caches, reproduction, report
+# ---------------------------------------------------------------------------------------------
+
+
+def test_mesh_cache_is_reused_across_runs(fakes, tmp_path):
+    cache = tmp_path / "cache"
+    assert main(oracle_args(tmp_path / "a", cache)) == 0
+    assert main(oracle_args(tmp_path / "b", cache)) == 0
+    a, b = read_results(tmp_path / "a"), read_results(tmp_path / "b")
+    assert (a["cache"].isna() | (a["cache"] == "fields")).all() and (b["cache"] == "mesh").all()
+    metric_cols = ["cd", "nc", "f1_005", "f1_01", "ecd", "ef1", "n_vertices", "n_faces"]
+    pd.testing.assert_frame_equal(a[metric_cols], b[metric_cols])
+    assert (cache / "fields").is_dir() and any((cache / "meshes").iterdir())
+
+
+def test_no_cache_writes_no_cache_file(fakes, tmp_path, monkeypatch):
+    monkeypatch.setenv("SALSBENCH_CACHE", str(tmp_path / "env-cache"))
+    args = oracle_args(tmp_path / "run", tmp_path / "cache", "--no-cache")
+    assert main(args) == 0
+    assert not (tmp_path / "cache").exists() and not (tmp_path / "env-cache").exists()
+
+
+def test_a_run_is_reproduced_from_its_own_config(fakes, tmp_path):
+    out, cache = tmp_path / "run", tmp_path / "cache"
+    assert main(oracle_args(out, cache, "--seed", "3")) == 0
+    again = tmp_path / "again"
+    assert main(["--config", str(out / "config.json"), "--out", str(again), "--no-cache", "--quiet"]) == 0
+    cols = ["shape", "method", "seed", "status", "cd", "nc", "f1_005", "ecd", "ef1", "n_faces"]
+    pd.testing.assert_frame_equal(read_results(out)[cols], read_results(again)[cols])
+
+
+def test_config_files_with_unknown_settings_are_refused(fakes, tmp_path, capsys):
+    cfg = tmp_path / "run.toml"
+    cfg.write_text('mode = "oracle"\ngird = 32\n')
+    assert main(["--config", str(cfg), "--out", str(tmp_path / "x")]) == EXIT_REFUSED
+    assert "unknown setting(s) gird; known: task, dataset" in one_error_line(capsys)
+    cfg.write_text('mode = "oracle"\ngrid = "32"\n')
+    assert main(["--config", str(cfg), "--out", str(tmp_path / "x")]) == EXIT_REFUSED
+    assert "setting 'grid' must be int, got '32'" in one_error_line(capsys)
+
+
+def test_report_subcommand_regenerates_results(fakes, tmp_path):
+    out, cache = tmp_path / "run", tmp_path / "cache"
+    assert main(oracle_args(out, cache)) == 0
+    again = tmp_path / "again"
+    assert main(["report", str(out), "--out", str(again)]) == 0
+    pd.testing.assert_frame_equal(read_results(out), read_results(again))
+    assert main(["report", str(tmp_path / "nothing")]) == 2
+
+
+def test_neural_run_fits_caches_weights_and_records_nan_loss(fakes, tmp_path):
+    cache = tmp_path / "cache"
+    args = ["--methods", "test_sdf", "test_nan", "--mode", "neural", "--budget", "tiny", "--grid", "24",
+            "--eval-points", "5000", "--limit", "1", "--cache-dir", str(cache), "--plugin", PLUGIN, "--quiet",
+            "--threads", "1"]
+    assert main(args + ["--out", str(tmp_path / "a")]) == EXIT_FAILED_TASKS
+    a = read_results(tmp_path / "a").set_index("method")
+    assert a.loc["test_sdf", "status"] == "ok", a.loc["test_sdf", "error"]
+    assert a.loc["test_sdf", "fit_s"] > 0 and a.loc["test_sdf", "sample_s"] > 0 and a.loc["test_sdf", "label_s"] > 0
+    assert np.isfinite(a.loc["test_sdf", "fit_loss"]) and a.loc["test_sdf", "n_faces"] > 0
+    assert a.loc["test_nan", "status"] == "failed"
+    assert a.loc["test_nan", "error"].startswith("fitting: FittingError: non-finite loss")
+    # another extractor parameter: the mesh is new, the fitted weights come from the cache, same fit
+    args[args.index("test_nan")] = "test_sdf"
+    assert main(args + ["--out", str(tmp_path / "b"), "--method-param", "test_sdf.level=0.01"]) == 0
+    b = read_results(tmp_path / "b").set_index("method")
+    assert b.loc["test_sdf", "cache"] == "weights" and b.loc["test_sdf", "fit_loss"] == a.loc["test_sdf", "fit_loss"]
+    assert np.isnan(b.loc["test_sdf", "fit_s"])  # no fitting happened in this run
+
+
+def test_registered_methods_oracle_end_to_end(tmp_path):
+    from methods.base import available_methods
+
+    methods = available_methods()
+    out = tmp_path / "run"
+    code = main(["--mode", "oracle", "--grid", "32", "--eval-points", "20000", "--limit", "1",
+                 "--out", str(out), "--cache-dir", str(tmp_path / "cache"), "--quiet"])
+    assert code == 0
+    df = read_results(out)
+    assert list(df.method) == methods and (df.status == "ok").all(), df[["method", "error"]]
+    assert (df.cd < 2 / 31).all()
