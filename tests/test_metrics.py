@@ -296,6 +296,62 @@ def test_prediction_without_edge_points_default_nan_flag():
     assert q["ecd_flag"] is True and np.isfinite(q["ecd"]) and q["ef1"] == 0.0
 
 
+@pytest.mark.filterwarnings("error")
+def test_a_prediction_2_to_the_1000_times_too_large_is_scored_not_called_empty():
+    """GT: cube [-1, 1]^3; prediction: the same cube scaled by s = 2^1000 (~1e301): a valid, absurdly
+    large mesh (its cross products used to overflow, so it was called "EMPTY or degenerate").
+    Relative to s the GT is a point at the origin: pred -> gt is the mean distance of a point
+    uniform on a face of the cube [-s, s]^3 from the origin, s * int int_[0,1]^2 sqrt(1 + y^2 + z^2)
+    = 1.28079 s (quadrature, see the concentric-cubes test); gt -> pred lies in [s - sqrt 3, sqrt 3 s]
+    and, with 20k samples on the faces, within 1% of s. Every distance exceeds 0.01: F1 = 0."""
+    v, f = box(2.0)
+    s = 2.0**1000
+    c = dblquad(lambda t, u: math.sqrt(1 + u * u + t * t), 0, 1, 0, 1)[0]
+    r = M.evaluate(v, f, v * s, f, n_points=20_000)
+    assert r["empty_prediction"] is False and r["dropped_faces"] == 0
+    assert r["cd_pred_to_gt"] / s == pytest.approx(c, rel=0.01)
+    assert 1.0 <= r["cd_gt_to_pred"] / s <= 1.01
+    assert r["f1_005"] == 0.0 and r["f1_01"] == 0.0
+    # ndc's squared CD of such a prediction exceeds float64: inf, and still no warning
+    assert M.evaluate(v, f, v * s, f, preset="ndc", n_points=5_000)["cd"] == math.inf
+
+
+@pytest.mark.filterwarnings("error")
+@pytest.mark.parametrize("exponent", [-1000, 1000])
+def test_ndc_scores_a_pair_at_2_to_the_1000_or_its_inverse_exactly_like_at_1(exponent):
+    """ndc maps both meshes by the GT's box, so scaling GT and prediction by a power of two (exact)
+    must not change one bit. It did: the diagonal of a 2^-1000 box underflowed to 0 ("GT bounding
+    box has zero size") and that of a 2^1000 box overflowed."""
+    v, f = box(2.0)
+    pv = v * 1.01 + 0.003
+    unit = metric_values(M.evaluate(v, f, pv, f, preset="ndc", n_points=5_000))
+    scale = 2.0**exponent
+    assert metric_values(M.evaluate(v * scale, f, pv * scale, f, preset="ndc", n_points=5_000)) == unit
+
+
+def test_a_prediction_whose_faces_lie_on_a_line_is_empty():
+    """Area 0.5e-14 on a box of side 1: below MIN_RELATIVE_AREA (1e-12) of its own size, so a line
+    up to rounding. It used to be sampled (total area > 0) into points with meaningless normals."""
+    v, f = box(2.0)
+    sliver = np.array([[0, 0, 0], [1, 0, 0], [0.5, 1e-14, 0]])
+    r = M.evaluate(v, f, sliver, [[0, 1, 2]], n_points=5_000)
+    assert r["empty_prediction"] is True and math.isnan(r["cd"]) and r["f1_005"] == 0.0 and r["dropped_faces"] == 0
+
+
+def test_a_degenerate_gt_is_one_line():
+    line = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0]], dtype=float)
+    with pytest.raises(ValueError, match=r"^GT mesh is degenerate: total area 0 x its largest bounding-box side "
+                                         r"squared \(below 1e-12: its faces lie on a line or a point\)$"):
+        M.evaluate(line, [[0, 1, 2]], *box(2.0), n_points=100)
+
+
+def test_nearest_distances_of_points_near_1e300_are_exact_not_inf():
+    """(0, 0, 0) and (3, 4, 0) scaled by 2^1000: distance 5 * 2^1000 (its square overflows)."""
+    s = 2.0**1000
+    d, i = M.nearest_distances(np.array([[0.0, 0.0, 0.0]]) * s, np.array([[3.0, 4.0, 0.0], [30.0, 0.0, 0.0]]) * s)
+    assert d.tolist() == [5 * s] and i.tolist() == [0]
+
+
 # ---------------------------------------------------------------- determinism
 
 
@@ -358,6 +414,12 @@ def test_validity_of_cube_square_and_nonmanifold_fan():
     soup_v = sv[sf.ravel()]
     got = M.mesh_validity(soup_v, np.arange(6).reshape(2, 3))
     assert (got["n_vertices"], got["boundary_edges"], got["components"]) == (6, 6, 2)
+    # indices as a broken file may hold (2^31 + 1 and 2^33 - 1): two triangles sharing the edge
+    # (B, C) only, so 4 boundary edges. Keys a * 2^33 + b used to wrap around 2^64 and pair the
+    # edges (1, B) ~ (A, B) and (1, C) ~ (A, C): "watertight"
+    a, b, c = 2**31 + 1, 2**33 - 1, 2**33 - 2
+    got = M.mesh_validity(fv, np.array([[1, b, c], [a, b, c]]))
+    assert (got["boundary_edges"], got["nonmanifold_edges"], got["components"], got["watertight"]) == (4, 0, 1, False)
     # two triangles sharing only a vertex: 2 components
     got = M.mesh_validity(fv, np.array([[0, 1, 2], [0, 3, 4]]))
     assert got["components"] == 2

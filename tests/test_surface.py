@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from benchmark.surface import sample_surface
+from benchmark.surface import MIN_RELATIVE_AREA, binary_exponent, relative_area, sample_surface
 
 
 def test_sample_surface_is_area_uniform_seeded_and_on_the_surface():
@@ -53,3 +53,37 @@ def test_a_seed_is_not_a_generator():
     v, f = np.eye(3), np.array([[0, 1, 2]])
     with pytest.raises(TypeError, match="^rng must be a numpy.random.Generator, got int$"):
         sample_surface(v, f, 10, 0)
+
+
+@pytest.mark.filterwarnings("error")
+@pytest.mark.parametrize("exponent", [-1000, 1000])
+def test_a_mesh_at_2_to_the_1000_or_its_inverse_samples_exactly_like_at_1(exponent):
+    """Scaling by a power of two is exact, so the samples of the scaled mesh are the scaled samples,
+    bit for bit. Without the internal rescale the cross products of a 2^-1000 mesh underflow to 0
+    and those of a 2^1000 mesh overflow to inf: "no face with positive area"."""
+    s = trimesh.creation.icosphere(subdivisions=2)
+    points, normals = sample_surface(s.vertices, s.faces, 5000, np.random.default_rng(4))
+    scale = 2.0**exponent
+    scaled_points, scaled_normals = sample_surface(s.vertices * scale, s.faces, 5000, np.random.default_rng(4))
+    assert np.array_equal(scaled_points, points * scale) and np.array_equal(scaled_normals, normals)
+
+
+@pytest.mark.filterwarnings("error")
+def test_relative_area_of_hand_worked_meshes_at_any_scale():
+    """Area over the largest bounding-box side squared: unit square 1, a 2 x 1 rectangle 2 / 4,
+    the surface of a cube 6, collinear triangles 0, a 1e-14-high sliver 0.5e-14 / 1 (below
+    MIN_RELATIVE_AREA = 1e-12: degenerate); the same at 1e-300 and 1e300 (no under- or overflow)."""
+    square = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float), np.array([[0, 1, 2], [0, 2, 3]])
+    rectangle = square[0] * [2, 1, 0], square[1]
+    cube = trimesh.creation.box()
+    line = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0]], float), np.array([[0, 1, 2]])
+    sliver = np.array([[0, 0, 0], [1, 0, 0], [0.5, 1e-14, 0]]), np.array([[0, 1, 2]])
+    for scale in (1.0, 1e-300, 1e300):
+        assert relative_area(square[0] * scale, square[1]) == pytest.approx(1.0, rel=1e-12)
+        assert relative_area(rectangle[0] * scale, rectangle[1]) == pytest.approx(0.5, rel=1e-12)
+        assert relative_area(cube.vertices * scale, cube.faces) == pytest.approx(6.0, rel=1e-12)
+        assert relative_area(line[0] * scale, line[1]) == 0.0
+        assert relative_area(sliver[0] * scale, sliver[1]) == pytest.approx(0.5e-14, rel=1e-6)
+    assert relative_area(*sliver) < MIN_RELATIVE_AREA
+    assert relative_area(square[0], np.zeros((0, 3), dtype=np.int64)) == 0.0
+    assert binary_exponent(np.array([0.75, -3.0, np.nan])) == 2 and binary_exponent(np.zeros(0)) == 0

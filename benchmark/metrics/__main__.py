@@ -37,7 +37,7 @@ def _format_table(result: dict, preset: MetricPreset, frame_note: str) -> str:
         lines.append("  prediction is EMPTY or degenerate (no area to sample): distance metrics NaN, F1 = 0")
     if result["dropped_faces"]:
         lines.append(f"  {result['dropped_faces']:,} prediction faces dropped (out-of-range indices or non-finite vertices)")
-    lines.append(f"  time {result['seconds']['total']:.2f} s")
+    lines.append(f"  time {result['seconds']['total_s']:.2f} s")
     return "\n".join(lines)
 
 

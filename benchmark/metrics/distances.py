@@ -8,6 +8,7 @@ import numpy as np
 from pykdtree.kdtree import KDTree
 
 from benchmark.metrics.presets import MetricPreset, get_preset
+from benchmark.surface import binary_exponent
 
 __all__ = ["spatial_order", "nearest_distances", "surface_metrics", "edge_metrics"]
 
@@ -32,21 +33,39 @@ def spatial_order(points: np.ndarray, cells_per_axis: int = 256) -> np.ndarray:
 def nearest_distances(query: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Euclidean distance from every query point to its nearest reference point, and its index.
 
-    Exact k = 1 search with pykdtree (multi-threaded, deterministic). Returns ``(d (m,), idx (m,))``.
+    Exact k = 1 search with pykdtree (multi-threaded, deterministic), on both sets rescaled by one
+    power of two (:func:`benchmark.surface.binary_exponent`: exact, so the distances equal the
+    unscaled ones, and squared distances of points at 1e300 do not overflow).
+
+    Parameters
+    ----------
+    query : (m, 3) array_like
+    reference : (r, 3) array_like, r >= 1
+        Points in one frame (any unit).
+
+    Returns
+    -------
+    d : (m,) float64 ndarray
+        Distances, in the points' unit.
+    idx : (m,) int64 ndarray
+        Index into ``reference`` of each query point's nearest neighbour.
     """
     reference = np.ascontiguousarray(reference, dtype=np.float64)
     query = np.ascontiguousarray(query, dtype=np.float64)
-    dist, idx = KDTree(reference).query(query, k=1)
-    return np.asarray(dist, dtype=np.float64), np.asarray(idx, dtype=np.int64)
+    k = max(binary_exponent(reference), binary_exponent(query))
+    dist, idx = KDTree(np.ldexp(reference, -k)).query(np.ldexp(query, -k), k=1)
+    return np.ldexp(np.asarray(dist, dtype=np.float64), k), np.asarray(idx, dtype=np.int64)
 
 
 def _chamfer(d_gt_to_pred: np.ndarray, d_pred_to_gt: np.ndarray, form: str) -> tuple[float, float, float]:
-    """(total, gt->pred term, pred->gt term) for the chamfer ``form``."""
-    if form == "l1_half_mean":
-        a, b = float(np.mean(d_gt_to_pred)), float(np.mean(d_pred_to_gt))
-        return 0.5 * (a + b), a, b
-    a, b = float(np.mean(np.square(d_gt_to_pred))), float(np.mean(np.square(d_pred_to_gt)))
-    return a + b, a, b
+    """(total, gt->pred term, pred->gt term) for the chamfer ``form``; inf where a term exceeds
+    the float64 range (a squared distance of 1e200, say)."""
+    with np.errstate(over="ignore"):
+        if form == "l1_half_mean":
+            a, b = float(np.mean(d_gt_to_pred)), float(np.mean(d_pred_to_gt))
+            return 0.5 * (a + b), a, b
+        a, b = float(np.mean(np.square(d_gt_to_pred))), float(np.mean(np.square(d_pred_to_gt)))
+        return a + b, a, b
 
 
 def _f1(d_gt_to_pred: np.ndarray, d_pred_to_gt: np.ndarray, tau: float) -> tuple[float, float, float]:

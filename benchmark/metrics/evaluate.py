@@ -11,7 +11,8 @@ from benchmark.metrics.distances import edge_metrics, spatial_order, surface_met
 from benchmark.metrics.edges import EdgeSearchTooDense, sharp_edge_points
 from benchmark.metrics.presets import MetricPreset, get_preset
 from benchmark.metrics.validity import mesh_validity
-from benchmark.surface import sample_surface
+from benchmark.surface import MIN_RELATIVE_AREA, binary_exponent, relative_area, sample_surface
+from benchmark.timing import StageTimer
 
 __all__ = ["evaluate", "floor"]
 
@@ -40,6 +41,14 @@ def _bbox(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return used.min(axis=0), used.max(axis=0)
 
 
+def _diagonal(lo: np.ndarray, hi: np.ndarray) -> float:
+    """``|hi - lo|`` on a power-of-two rescale of the box (exact: no overflow at 1e300, no
+    underflow at 1e-300); inf only when the diagonal itself exceeds the float64 range."""
+    k = binary_exponent(np.stack([lo, hi]))
+    with np.errstate(over="ignore"):
+        return float(np.ldexp(np.linalg.norm(np.ldexp(hi, -k) - np.ldexp(lo, -k)), k))
+
+
 def _usable_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Faces with in-range indices and finite vertex coordinates (the rest are dropped)."""
     if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0 or vertices.ndim != 2 or len(vertices) == 0:
@@ -48,6 +57,18 @@ def _usable_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     finite = np.all(np.isfinite(vertices), axis=1)
     ok[ok] = np.all(finite[faces[ok]], axis=1)
     return faces[ok]
+
+
+def _check_gt(vertices: np.ndarray, faces: np.ndarray) -> None:
+    """One-line ValueError for a GT that cannot be scored against."""
+    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
+        raise ValueError("GT mesh has no triangles")
+    if len(_usable_faces(vertices, faces)) != len(faces):
+        raise ValueError("GT mesh has out-of-range face indices or non-finite vertices")
+    area = relative_area(vertices, faces)
+    if not area >= MIN_RELATIVE_AREA:
+        raise ValueError(f"GT mesh is degenerate: total area {area:.3g} x its largest bounding-box side squared "
+                         f"(below {MIN_RELATIVE_AREA:g}: its faces lie on a line or a point)")
 
 
 def evaluate(
@@ -61,29 +82,54 @@ def evaluate(
 ) -> dict:
     """All SPEC section 7 metrics of a prediction against a GT mesh. Never raises on the prediction.
 
-    Inputs are vertex (n, 3) and face (m, 3) arrays in one frame: the GT's canonical frame for the
-    ``default`` preset (they are used as given); for ``ndc`` both are first mapped by
-    ``x -> (x - c) / D`` (c, D = GT bounding-box centre and diagonal). ``n_points`` overrides the
-    preset's sample count. GT samples come from child 0 and prediction samples from child 1 of
-    ``SeedSequence(seed)`` for an int ``seed``, or of the SeedSequence ``seed`` (the run layer
-    passes ``benchmark.seeding.job_streams(shape_hash, seed).metrics``); the SeedSequence is
-    rebuilt from its state first, so its earlier spawns do not matter.
+    Parameters
+    ----------
+    gt_vertices, gt_faces : (V, 3) float and (F, 3) int array_like
+        The GT mesh, in the GT's canonical frame for the ``default`` preset (used as given); for
+        ``ndc`` both meshes are first mapped by ``x -> (x - c) / D`` (c, D: GT bounding-box centre
+        and diagonal).
+    pred_vertices, pred_faces : array_like
+        The prediction, in the same frame; anything goes (empty, NaN, out-of-range indices).
+    preset : str or MetricPreset
+        The protocol (:data:`PRESETS` name or a preset).
+    seed : int >= 0 or numpy.random.SeedSequence
+        GT samples come from child 0 and prediction samples from child 1 of ``SeedSequence(seed)``
+        for an int, or of the SeedSequence itself (the run layer passes
+        ``benchmark.seeding.job_streams(shape_hash, seed).metrics``), rebuilt from its state first so
+        its earlier spawns do not matter.
+    n_points : int, optional
+        Samples per mesh (default: the preset's).
 
-    Returns a flat dict of raw (unscaled) values: ``cd, cd_gt_to_pred, cd_pred_to_gt, nc``,
-    ``f1_*/precision_*/recall_*`` per threshold, ``ecd, ef1, eprecision, erecall, ecd_flag``,
-    ``gt_edge_points, pred_edge_points`` (counts; -1 = not computed), ``edge_search_skipped`` ('' or
-    why the exact edge search was refused, :class:`EdgeSearchTooDense`: ECD/EF1 are then NaN; happens
-    for samples far denser than r, e.g. a prediction 100x smaller than the GT), ``empty_prediction``, ``dropped_faces`` (faces with
-    out-of-range indices or non-finite vertices, excluded from sampling), the validity columns of
-    the prediction as given (:func:`mesh_validity`), and the protocol: ``preset, n_points, seed,
-    gt_diagonal, edge_radius, ef1_threshold`` (absolute, in the frame) and ``seconds`` (per stage).
-    Raises ValueError only for an unusable GT (no faces of positive area, NaN vertices).
+    Returns
+    -------
+    dict
+        Flat, raw (unscaled) values in the preset's frame: ``cd, cd_gt_to_pred, cd_pred_to_gt, nc``,
+        ``f1_*/precision_*/recall_*`` per threshold, ``ecd, ef1, eprecision, erecall, ecd_flag``,
+        ``gt_edge_points, pred_edge_points`` (counts; -1 = not computed), ``edge_search_skipped``
+        ('' or why the exact edge search was refused, :class:`EdgeSearchTooDense`: ECD/EF1 are then
+        NaN; happens for samples far denser than r, e.g. a prediction 100x smaller than the GT),
+        ``empty_prediction`` (no usable face, or its faces lie on a line or a point: total area
+        below :data:`~benchmark.surface.MIN_RELATIVE_AREA` of its own bounding box's largest side
+        squared, whatever its size; distance metrics NaN, F1 0), ``dropped_faces`` (faces with
+        out-of-range indices or non-finite vertices, excluded from sampling), the validity columns
+        of the prediction as given (:func:`mesh_validity`), the protocol: ``preset, n_points,
+        seed`` (the int, or the SeedSequence's state as a string), ``gt_diagonal, edge_radius,
+        ef1_threshold`` (absolute, in the frame), and ``seconds``: ``<stage>_s`` wall-clock seconds
+        per stage and ``total_s``.
+
+    Raises
+    ------
+    ValueError
+        Only for an unusable GT (no triangles, out-of-range indices, non-finite vertices, faces on a
+        line or a point, a bounding box beyond float64), a bad ``n_points`` or ``seed``.
     """
+    timer = StageTimer()
     t_start = time.perf_counter()
     preset = get_preset(preset)
     n = int(preset.n_points if n_points is None else n_points)
     if n < 1:
         raise ValueError(f"n_points must be >= 1, got {n}")
+    gt_stream, pred_stream, seed_record = _sampling_streams(seed)
     gt_vertices = np.asarray(gt_vertices, dtype=np.float64)
     gt_faces = np.asarray(gt_faces, dtype=np.int64)
     pred_vertices = np.asarray(pred_vertices, dtype=np.float64)
@@ -92,75 +138,68 @@ def evaluate(
     if pred_vertices.size == 0:
         pred_vertices = np.zeros((0, 3))
 
-    if gt_faces.ndim != 2 or gt_faces.shape[1] != 3 or len(gt_faces) == 0:
-        raise ValueError("GT mesh has no triangles")
-    if len(_usable_faces(gt_vertices, gt_faces)) != len(gt_faces):
-        raise ValueError("GT mesh has out-of-range face indices or non-finite vertices")
+    _check_gt(gt_vertices, gt_faces)
     lo, hi = _bbox(gt_vertices, gt_faces)
     if preset.frame == "diag1":
-        centre, diag = 0.5 * (lo + hi), float(np.linalg.norm(hi - lo))
-        if not diag > 0:
-            raise ValueError("GT bounding box has zero size")
-        gt_vertices = (gt_vertices - centre) / diag
-        pred_vertices = (pred_vertices - centre) / diag
-        lo, hi = (lo - centre) / diag, (hi - centre) / diag
-    gt_diagonal = float(np.linalg.norm(hi - lo))
+        diag = _diagonal(lo, hi)
+        with np.errstate(over="ignore", invalid="ignore"):  # a prediction beyond float64 there: inf, dropped
+            centre = 0.5 * (lo + hi)
+            gt_vertices = (gt_vertices - centre) / diag
+            pred_vertices = (pred_vertices - centre) / diag
+            lo, hi = (lo - centre) / diag, (hi - centre) / diag
+        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+            raise ValueError(f"GT bounding box (diagonal {diag:.3g}) is beyond the float64 range")
+    gt_diagonal = _diagonal(lo, hi)
+    if not np.isfinite(gt_diagonal):
+        raise ValueError("GT bounding-box diagonal is beyond the float64 range: normalise the GT first")
     unit = gt_diagonal if preset.edge_units == "gt_diagonal" else 1.0
     radius, tau_e = preset.edge_radius * unit, preset.ef1_threshold * unit
 
-    seconds = {}
-    t = time.perf_counter()
-    validity = mesh_validity(pred_vertices, pred_faces)
-    usable = _usable_faces(pred_vertices, pred_faces)
-    seconds["validity"] = time.perf_counter() - t
+    with timer.stage("validity"):
+        validity = mesh_validity(pred_vertices, pred_faces)
+        usable = _usable_faces(pred_vertices, pred_faces)
+        empty = not relative_area(pred_vertices, usable) >= MIN_RELATIVE_AREA
 
-    gt_stream, pred_stream, seed_record = _sampling_streams(seed)
-    t = time.perf_counter()
-    gt_points, gt_normals = sample_surface(gt_vertices, gt_faces, n, gt_stream)
-    try:
-        pred_points, pred_normals = sample_surface(pred_vertices, usable, n, pred_stream)
-        empty = False
-    except ValueError:  # no faces, or zero total area
-        pred_points = pred_normals = np.zeros((0, 3))
-        empty = True
-    # spatial order: same point sets, much faster KD-tree queries
-    order = spatial_order(gt_points)
-    gt_points, gt_normals = gt_points[order], gt_normals[order]
-    order = spatial_order(pred_points)
-    pred_points, pred_normals = pred_points[order], pred_normals[order]
-    seconds["sample"] = time.perf_counter() - t
+    with timer.stage("sample"):
+        gt_points, gt_normals = sample_surface(gt_vertices, gt_faces, n, gt_stream)
+        if empty:
+            pred_points = pred_normals = np.zeros((0, 3))
+        else:
+            pred_points, pred_normals = sample_surface(pred_vertices, usable, n, pred_stream)
+        # spatial order: same point sets, much faster KD-tree queries
+        order = spatial_order(gt_points)
+        gt_points, gt_normals = gt_points[order], gt_normals[order]
+        order = spatial_order(pred_points)
+        pred_points, pred_normals = pred_points[order], pred_normals[order]
 
     result = {"preset": preset.name, "n_points": n, "seed": seed_record}
-    t = time.perf_counter()
-    if empty:
-        result.update(cd=float("nan"), cd_gt_to_pred=float("nan"), cd_pred_to_gt=float("nan"), nc=float("nan"))
-        for key in preset.f1_keys:
-            result.update({key: 0.0, f"precision_{key[3:]}": 0.0, f"recall_{key[3:]}": 0.0})
-    else:
-        result.update(surface_metrics(gt_points, gt_normals, pred_points, pred_normals, preset))
-    seconds["distances"] = time.perf_counter() - t
-
-    t = time.perf_counter()
-    skipped = ""
-    try:
-        gt_edge = sharp_edge_points(gt_points, gt_normals, radius, preset.edge_dot_threshold)
-    except EdgeSearchTooDense as exc:
-        gt_edge, skipped = None, f"GT {exc}"
-    try:
-        pred_edge = sharp_edge_points(pred_points, pred_normals, radius, preset.edge_dot_threshold)
-    except EdgeSearchTooDense as exc:
-        pred_edge, skipped = None, skipped or f"prediction {exc}"
-    seconds["edge_points"] = time.perf_counter() - t
-    t = time.perf_counter()
     nan = float("nan")
-    if empty:
-        has_gt_edges = gt_edge is None or bool(gt_edge.any())
-        edges = {"ecd": nan, "ef1": 0.0, "eprecision": 0.0, "erecall": 0.0, "ecd_flag": has_gt_edges}
-    elif skipped:
-        edges = {"ecd": nan, "ef1": nan, "eprecision": nan, "erecall": nan, "ecd_flag": False}
-    else:
-        edges = edge_metrics(gt_points[gt_edge], pred_points[pred_edge], preset, gt_diagonal)
-    seconds["edge_metrics"] = time.perf_counter() - t
+    with timer.stage("distances"):
+        if empty:
+            result.update(cd=nan, cd_gt_to_pred=nan, cd_pred_to_gt=nan, nc=nan)
+            for key in preset.f1_keys:
+                result.update({key: 0.0, f"precision_{key[3:]}": 0.0, f"recall_{key[3:]}": 0.0})
+        else:
+            result.update(surface_metrics(gt_points, gt_normals, pred_points, pred_normals, preset))
+
+    with timer.stage("edge_points"):
+        skipped = ""
+        try:
+            gt_edge = sharp_edge_points(gt_points, gt_normals, radius, preset.edge_dot_threshold)
+        except EdgeSearchTooDense as exc:
+            gt_edge, skipped = None, f"GT {exc}"
+        try:
+            pred_edge = sharp_edge_points(pred_points, pred_normals, radius, preset.edge_dot_threshold)
+        except EdgeSearchTooDense as exc:
+            pred_edge, skipped = None, skipped or f"prediction {exc}"
+    with timer.stage("edge_metrics"):
+        if empty:
+            has_gt_edges = gt_edge is None or bool(gt_edge.any())
+            edges = {"ecd": nan, "ef1": 0.0, "eprecision": 0.0, "erecall": 0.0, "ecd_flag": has_gt_edges}
+        elif skipped:
+            edges = {"ecd": nan, "ef1": nan, "eprecision": nan, "erecall": nan, "ecd_flag": False}
+        else:
+            edges = edge_metrics(gt_points[gt_edge], pred_points[pred_edge], preset, gt_diagonal)
     result.update(edges)
     result.update(
         gt_edge_points=-1 if gt_edge is None else int(gt_edge.sum()),
@@ -171,8 +210,7 @@ def evaluate(
     )
     result.update(validity)
     result.update(gt_diagonal=gt_diagonal, edge_radius=radius, ef1_threshold=tau_e)
-    seconds["total"] = time.perf_counter() - t_start
-    result["seconds"] = seconds
+    result["seconds"] = {**timer.seconds, "total_s": time.perf_counter() - t_start}
     return result
 
 

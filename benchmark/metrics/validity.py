@@ -28,7 +28,9 @@ def mesh_validity(vertices: np.ndarray, faces: np.ndarray) -> dict:
         out.update(boundary_edges=0, nonmanifold_edges=0, components=0, watertight=False)
         return out
     sides = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)  # face f owns rows 3f..3f+2
-    sides = sides - min(int(sides.min()), 0)  # out-of-range indices are counted as given
+    sides = sides - int(sides.min())  # out-of-range indices are counted as given
+    if int(sides.max()) >= 2**31:  # keys below would overflow int64: renumber the used ids densely
+        sides = np.unique(sides, return_inverse=True)[1].reshape(sides.shape)
     side_keys = sides[:, 0] * (int(sides.max()) + 1) + sides[:, 1]
     edge_keys, edge_of_side, uses = np.unique(side_keys, return_inverse=True, return_counts=True)
     edge_of_side = edge_of_side.reshape(-1)
