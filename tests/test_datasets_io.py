@@ -3,20 +3,22 @@
 from __future__ import annotations
 
 import re
+import sys
 
 import numpy as np
 import pytest
 import trimesh
 
 from tests.conftest import SHARED_DATA, shared_meshes
+from datasets.formats import parse_off
 from datasets.io import (
     MeshError,
     Normalization,
     classify_topology,
     load_shape,
     normalize_shape,
-    parse_off,
     read_mesh_arrays,
+    read_mesh_file,
     save_mesh,
 )
 
@@ -89,25 +91,61 @@ def _write(path, content):
     return path
 
 
+PLY_HEAD = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+PLY_FACE = "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"
+ASCII_STL = (b"solid caf\xe9\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nvertex 0 1 0\n"
+             b"endloop\nendfacet\nendsolid caf\xe9\n")  # the solid's name in Latin-1: not UTF-8
+
+#: file name -> (content, the whole message after "<path>: ")
 BAD_INPUTS = {
     "missing.obj": (None, "file not found"),
     "empty.obj": ("", "file is empty"),
-    "garbage.ply": (bytes(range(256)) * 8, "unreadable"),
-    "garbage.obj": (bytes(range(256)) * 8, "binary data"),
-    "nan.obj": ("v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "NaN"),
-    "degenerate.obj": ("v 0 0 0\nv 1 0 0\nv 2 0 0\nv 3 0 0\nf 1 2 3\nf 1 2 4\nf 2 2 3\n", "area is zero"),
-    "points.ply": ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
-                   "property float z\nend_header\n0 0 0\n1 0 0\n0 1 0\n", "point cloud"),
-    "points.obj": ("v 0 0 0\nv 1 0 0\nv 0 1 0\n", "no faces"),
-    "text.obj": ("hello world\n", "no vertices"),
-    "badindex.obj": ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n", "out of range"),
-    "zeroindex.obj": ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", "index 0"),
-    "text.off": ("hello\n", "no OFF header"),
-    "short.off": ("OFF\n3 1 0\n0 0 0\n1 0 0\n", "ends early"),
-    "mesh.xyz": ("0 0 0\n", "unsupported extension"),
+    "garbage.obj": (bytes(range(256)) * 8, "holds binary data, not a text OBJ file"),
+    "nan.obj": ("v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "1 vertices have NaN or infinite coordinates"),
+    "degenerate.obj": ("v 0 0 0\nv 1 0 0\nv 2 0 0\nv 3 0 0\nf 1 2 3\nf 1 2 4\nf 2 2 3\n",
+                       "total surface area is zero relative to its size (0 x the largest bounding-box side "
+                       "squared, below 1e-12; degenerate mesh)"),
+    # a sliver: area 0.5e-14 on a box of side 1, a line up to rounding
+    "sliver.obj": ("v 0 0 0\nv 1 0 0\nv 0.5 1e-14 0\nf 1 2 3\n",
+                   "total surface area is zero relative to its size (5e-15 x the largest bounding-box side "
+                   "squared, below 1e-12; degenerate mesh)"),
+    "points.ply": (PLY_HEAD + "end_header\n0 0 0\n1 0 0\n0 1 0\n",
+                   "3 vertices but no faces (a point cloud?); a triangle mesh is needed"),
+    "points.obj": ("v 0 0 0\nv 1 0 0\nv 0 1 0\n", "3 vertices but no faces (a point cloud?); a triangle mesh is needed"),
+    "text.obj": ("hello world\n", "no vertices found (not an OBJ mesh?)"),
+    "badindex.obj": ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n", "face indices out of range [0, 3)"),
+    "hugeindex.obj": ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 1e20\n",
+                      "face index 1e+20 is out of range (no mesh has that many vertices)"),
+    "hugeindex.off": ("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 1e20\n",
+                      "face index 1e+20 is out of range (no mesh has that many vertices)"),
+    "zeroindex.obj": ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", "face index 0 (OBJ indices start at 1)"),
+    "text.off": ("hello\n", "no OFF header (first line starts with 'hello')"),
+    "short.off": ("OFF\n3 1 0\n0 0 0\n1 0 0\n", "file ends early: header promises 3 vertices and 1 faces, found 2 data lines"),
+    "mesh.xyz": ("0 0 0\n", "unsupported extension '.xyz' (use one of .obj, .ply, .stl, .off, .glb, .gltf)"),
+    # STL: bytes 80-83 of bytes(range(256)) are 0x50 0x51 0x52 0x53, a little-endian count of 1,397,903,696
+    "garbage.stl": (bytes(range(256)) * 8, "not an STL file: binary header claims 1,397,903,696 triangles "
+                    "(69,895,184,884 bytes) but the file holds 2,048 bytes, and it does not start with 'solid' (ASCII STL)"),
+    "short.stl": (b"abc", "not an STL file: 3 bytes, shorter than a binary STL header (84 bytes), "
+                  "and it does not start with 'solid' (ASCII STL)"),
+    # bytes 80-83 of "solid " + bytes(range(256)) are 0x4a..0x4d: 1,296,845,642 triangles
+    "binary_solid.stl": (b"solid " + bytes(range(256)), "not an STL file: starts with 'solid' but holds binary data, "
+                         "and its binary header claims 1,296,845,642 triangles (64,842,282,184 bytes) but the file holds 262 bytes"),
+    # PLY headers
+    "garbage.ply": (bytes(range(256)) * 8, "not a PLY file (its first line is not 'ply')"),
+    "no_y.ply": (PLY_HEAD.replace("property float y\n", "") + PLY_FACE, "PLY vertex element lacks property 'y'"),
+    "no_vertex.ply": ("ply\nformat ascii 1.0\n" + PLY_FACE, "PLY header has no 'element vertex' line"),
+    "no_end.ply": (PLY_HEAD, "PLY header has no 'end_header' line"),
+    "no_format.ply": (PLY_HEAD.replace("format ascii 1.0\n", "") + PLY_FACE, "PLY header has no 'format' line"),
+    "bad_format.ply": (PLY_HEAD.replace("ascii", "text") + PLY_FACE,
+                       "PLY format 'text' is not one of ascii, binary_little_endian, binary_big_endian (with a version)"),
+    "bad_type.ply": (PLY_HEAD.replace("float y", "flaot y") + PLY_FACE,
+                     "PLY header line 5 is not a property of a declared element: 'property flaot y'"),
+    "truncated.ply": (PLY_HEAD.replace("ascii", "binary_little_endian") + PLY_FACE.split("end_header")[0] + "end_header\n",
+                      "PLY data does not match its header (PLY is unexpected length!)"),
 }
 
 
+@pytest.mark.filterwarnings("error")  # no warning may leak before the error line
 @pytest.mark.parametrize("file_name", sorted(BAD_INPUTS))
 def test_bad_input_gives_one_line_mesh_error(tmp_path, file_name):
     content, expected = BAD_INPUTS[file_name]
@@ -116,10 +154,66 @@ def test_bad_input_gives_one_line_mesh_error(tmp_path, file_name):
         _write(path, content)
     with pytest.raises(MeshError) as info:
         read_mesh_arrays(path)
-    message = str(info.value)
-    assert "\n" not in message
-    assert message.startswith(str(path) + ":")
-    assert expected in message
+    assert str(info.value) == f"{path}: {expected}"
+
+
+def test_stl_reading_does_not_depend_on_trimeshs_optional_encoding_detector(tmp_path, monkeypatch):
+    """trimesh guesses non-UTF-8 text with charset_normalizer, an optional dependency; without it a
+    Latin-1 ASCII STL used to fail as "unreadable (No module named 'charset_normalizer')"."""
+    monkeypatch.setitem(sys.modules, "charset_normalizer", None)  # import fails, as where it is absent
+    vertices, faces = read_mesh_arrays(_write(tmp_path / "latin1.stl", ASCII_STL))
+    np.testing.assert_array_equal(vertices, [[0, 0, 0], [0, 1, 0], [1, 0, 0]])  # welded: sorted unique
+    np.testing.assert_array_equal(vertices[faces], [[[0, 0, 0], [1, 0, 0], [0, 1, 0]]])
+    with pytest.raises(MeshError, match="not an STL file: binary header claims"):
+        read_mesh_arrays(_write(tmp_path / "garbage.stl", bytes(range(256)) * 8))
+
+
+@pytest.mark.filterwarnings("error")
+@pytest.mark.parametrize("exponent", [-1000, 1000])
+def test_a_mesh_at_2_to_the_1000_or_its_inverse_loads_like_the_same_mesh_at_1(tmp_path, exponent):
+    """Degeneracy is judged in the canonical frame: a tetrahedron scaled by 2^-1000 (~1e-301) used to
+    be refused as "total surface area is zero", one at 2^1000 (~1e301) to warn "overflow". Scaling by
+    a power of two is exact, so both load to exactly the unit tetrahedron's canonical arrays."""
+    tet = np.array([[0, 0, 0], [4, 0, 0], [0, 2, 0], [0, 0, 1]], dtype=float)
+    text = "f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
+    def obj(vertices):  # repr: the exact float64 values
+        return "".join("v " + " ".join(repr(float(x)) for x in p) + "\n" for p in vertices) + text
+
+    unit = load_shape(_write(tmp_path / "unit.obj", obj(tet)))
+    shape = load_shape(_write(tmp_path / "scaled.obj", obj(tet * 2.0**exponent)))
+    np.testing.assert_array_equal(shape.vertices, unit.vertices)
+    np.testing.assert_array_equal(shape.faces, unit.faces)
+
+
+@pytest.mark.filterwarnings("error")
+def test_a_box_beyond_float64_is_one_line_not_an_overflow_warning(tmp_path):
+    path = _write(tmp_path / "huge.obj", "v -1e308 0 0\nv 1e308 0 0\nv 0 1e308 0\nf 1 2 3\n")
+    with pytest.raises(MeshError) as info:
+        load_shape(path)
+    assert str(info.value) == f"{path}: bounding box (largest side inf) cannot be normalised in float64"
+
+
+def test_read_mesh_file_checks_the_file_not_the_content(tmp_path):
+    """A prediction is data: read_mesh_file returns what the file holds (NaN, out-of-range indices,
+    no faces, nothing); read_mesh_arrays refuses the same content."""
+    cases = {
+        "nan.obj": ("v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", (3, 1)),
+        "badindex.obj": ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n", (3, 1)),
+        "points.off": ("OFF\n3 0 0\n0 0 0\n1 0 0\n0 1 0\n", (3, 0)),
+        "points.ply": (PLY_HEAD + "end_header\n0 0 0\n1 0 0\n0 1 0\n", (3, 0)),
+    }
+    for name, (content, (n_vertices, n_faces)) in cases.items():
+        vertices, faces = read_mesh_file(_write(tmp_path / name, content))
+        assert vertices.shape == (n_vertices, 3) and faces.shape == (n_faces, 3), name
+        with pytest.raises(MeshError):
+            read_mesh_arrays(tmp_path / name)
+    # an empty mesh as trimesh writes it (PLY with 0 vertices and 0 faces)
+    save_mesh(tmp_path / "empty.ply", np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
+    vertices, faces = read_mesh_file(tmp_path / "empty.ply")
+    assert vertices.shape == (0, 3) and faces.shape == (0, 3)
+    # the file itself is still checked
+    with pytest.raises(MeshError, match="PLY vertex element lacks property 'y'"):
+        read_mesh_file(_write(tmp_path / "no_y.ply", PLY_HEAD.replace("property float y\n", "") + PLY_FACE))
 
 
 def test_directory_is_not_a_mesh(tmp_path):
