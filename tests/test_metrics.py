@@ -1,23 +1,19 @@
-"""Tests of benchmark.metrics (SPEC section 7) on shapes whose answers can be worked out by hand."""
+"""Tests of benchmark.metrics (SPEC section 7) on shapes whose answers can be worked out by hand:
+presets, the distance formulas, evaluate/floor on degenerate input, seeds. Sharp-edge points,
+validity and the command line have their own files (tests/test_metrics_*.py)."""
 
 from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 import trimesh
 from scipy.integrate import dblquad
-from scipy.spatial.distance import cdist
 
 from benchmark import metrics as M
-from benchmark.metrics.__main__ import main
 from benchmark.seeding import job_streams
-from benchmark.surface import sample_surface
-from tests.conftest import REPO
 
 
 def box(side: float):
@@ -123,79 +119,6 @@ def test_identical_meshes_score_the_floor_and_f1_rises_with_n():
     # ~0.5/sqrt(density) on area 24: cd ~ 0.5 * sqrt(24 / n) within a factor 2
     assert 0.25 * math.sqrt(24 / 300_000) < cds[2] < 1.0 * math.sqrt(24 / 300_000)
     assert results[-1]["nc"] > 0.99
-
-
-# ---------------------------------------------------------------- sharp-edge points
-
-
-def brute_force_edge_points(points, normals, radius, dot_threshold=0.2):
-    close = cdist(points, points) <= radius
-    perpendicular = np.abs(normals @ normals.T) < dot_threshold
-    return np.any(close & perpendicular, axis=1)
-
-
-@pytest.mark.parametrize("case", ["random", "two_planes", "noisy_plane"])
-def test_sharp_edge_points_equal_brute_force(case):
-    rng = np.random.default_rng(7)
-    n = 2000
-    if case == "random":
-        points = rng.random((n, 3))
-        normals = rng.normal(size=(n, 3))
-    elif case == "two_planes":  # an L: z = 0 (normal z) and x = 0 (normal x), both [0, 1]^2
-        u = rng.random((n, 2))
-        half = n // 2
-        points = np.c_[u[:, 0], u[:, 1], np.zeros(n)]
-        points[half:] = np.c_[np.zeros(n - half), u[half:, 1], u[half:, 0]]
-        normals = np.tile([0.0, 0.0, 1.0], (n, 1))
-        normals[half:] = [1.0, 0.0, 0.0]
-    else:  # a plane with normals tilted by up to ~50 degrees: the cell filter cannot clear much
-        points = np.c_[rng.random((n, 2)), np.zeros(n)]
-        normals = np.c_[rng.normal(scale=0.6, size=(n, 2)), np.ones(n)]
-    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    for radius in (0.02, 0.05, 0.15):
-        expected = brute_force_edge_points(points, normals, radius)
-        assert np.array_equal(M.sharp_edge_points(points, normals, radius), expected)
-    if case == "two_planes":  # exactly the points within r of the shared line x = z = 0
-        got = M.sharp_edge_points(points, normals, 0.05)
-        assert got.sum() > 0 and np.all(points[got][:, [0, 2]].max(axis=1) <= 0.05)
-
-
-def test_edge_points_find_the_twelve_edges_of_a_cube():
-    """Cube [-1, 1]^3: D = 2 sqrt 3, r = 0.004 D. A sample p on face x = 1 is an edge point only via
-    a sample q within r on an adjacent face y = +-1 or z = +-1 (opposite faces are 2 away; equal
-    normals have |dot| = 1); then 1 - |p_y| <= |p - q| <= r, so p lies within r of a cube edge."""
-    v, f = box(2.0)
-    r = M.evaluate(v, f, v, f, n_points=200_000, seed=0)
-    radius = r["edge_radius"]
-    assert radius == pytest.approx(0.004 * 2 * math.sqrt(3))
-    points, normals = sample_surface(v, f, 200_000, np.random.default_rng(0))
-    edge = M.sharp_edge_points(points, normals, radius)
-    p = points[edge]
-    # distance of a surface point to the nearest cube edge: among its two coordinates that are
-    # not +-1 (the face's own axis), the smaller gap 1 - |x_i|
-    gaps = np.sort(1 - np.abs(p), axis=1)  # gaps[:, 0] = 0 (own face), gaps[:, 1] = edge distance
-    assert np.all(gaps[:, 0] < 1e-12) and np.all(gaps[:, 1] <= radius + 1e-12)
-    # every edge covered: each of the 12 edges, cut in 10 pieces, holds edge points in every piece
-    axis_along = np.argmax(1 - np.abs(p), axis=1)  # the coordinate that runs along the edge
-    covered = set()
-    for along in range(3):
-        sel = p[axis_along == along]
-        others = [a for a in range(3) if a != along]
-        signs = np.sign(sel[:, others]).astype(int)
-        piece = np.minimum(((sel[:, along] + 1) / 2 * 10).astype(int), 9)
-        covered |= {(along, s0, s1, k) for (s0, s1), k in zip(map(tuple, signs), piece)}
-    assert len(covered) == 12 * 10
-    assert r["gt_edge_points"] > 1000 and r["ef1"] > 0.9
-
-
-def test_no_edge_points_on_a_sphere_and_gt_without_edges_gives_ecd_0_ef1_1():
-    v, f = sphere()
-    points, normals = sample_surface(v, f, 100_000, np.random.default_rng(0))
-    assert not M.sharp_edge_points(points, normals, 0.004 * 1.8 * math.sqrt(3)).any()
-    cube_v, cube_f = box(1.6)
-    r = M.evaluate(v, f, cube_v, cube_f, n_points=50_000)  # GT sphere, prediction with edges
-    assert r["gt_edge_points"] == 0 and r["pred_edge_points"] > 0
-    assert r["ecd"] == 0.0 and r["ef1"] == 1.0 and r["ecd_flag"] is False
 
 
 # ---------------------------------------------------------------- the ndc preset, by hand
@@ -393,85 +316,3 @@ def test_a_seed_that_is_neither_a_non_negative_int_nor_a_seed_sequence_is_refuse
     v, f = box(2.0)
     with pytest.raises(ValueError, match="^seed must be a non-negative int or a numpy.random.SeedSequence, got "):
         M.evaluate(v, f, v, f, n_points=100, seed=seed)
-
-
-# ---------------------------------------------------------------- validity columns
-
-
-def test_validity_of_cube_square_and_nonmanifold_fan():
-    v, f = box(2.0)
-    assert M.mesh_validity(v, f) == {
-        "n_vertices": 8, "n_faces": 12, "boundary_edges": 0, "nonmanifold_edges": 0, "components": 1, "watertight": True}
-    sv, sf = square()
-    got = M.mesh_validity(sv, sf)
-    assert (got["boundary_edges"], got["nonmanifold_edges"], got["components"], got["watertight"]) == (4, 0, 1, False)
-    # three triangles on the edge (0, 1): one non-manifold edge, 6 boundary edges, one component
-    fv = np.array([[0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, -1, 0], [0.5, 0, 1]], dtype=float)
-    ff = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]])
-    got = M.mesh_validity(fv, ff)
-    assert (got["boundary_edges"], got["nonmanifold_edges"], got["components"], got["watertight"]) == (6, 1, 1, False)
-    # as given, no merging: a soup of the square (duplicated corner vertices) is 2 components
-    soup_v = sv[sf.ravel()]
-    got = M.mesh_validity(soup_v, np.arange(6).reshape(2, 3))
-    assert (got["n_vertices"], got["boundary_edges"], got["components"]) == (6, 6, 2)
-    # indices as a broken file may hold (2^31 + 1 and 2^33 - 1): two triangles sharing the edge
-    # (B, C) only, so 4 boundary edges. Keys a * 2^33 + b used to wrap around 2^64 and pair the
-    # edges (1, B) ~ (A, B) and (1, C) ~ (A, C): "watertight"
-    a, b, c = 2**31 + 1, 2**33 - 1, 2**33 - 2
-    got = M.mesh_validity(fv, np.array([[1, b, c], [a, b, c]]))
-    assert (got["boundary_edges"], got["nonmanifold_edges"], got["components"], got["watertight"]) == (4, 0, 1, False)
-    # two triangles sharing only a vertex: 2 components
-    got = M.mesh_validity(fv, np.array([[0, 1, 2], [0, 3, 4]]))
-    assert got["components"] == 2
-    assert M.evaluate(v, f, v, f, n_points=2000)["watertight"] is True
-
-
-# ---------------------------------------------------------------- command line
-
-
-def run_cli(*args):
-    return subprocess.run(
-        [sys.executable, "-m", "benchmark.metrics", *map(str, args)], cwd=REPO, capture_output=True, text=True, timeout=120
-    )
-
-
-def test_cli_json_on_two_tiny_meshes(tmp_path, capsys):
-    """GT cube side 20, prediction cube side 22 (offset 1 per face). The GT's canonical transform
-    scales by 1.99 / 20, so the offset becomes 0.0995; with --no-normalize it stays 1. The sampled
-    gt -> pred mean exceeds the offset by ~E[s^2] / (2 offset) ~ 2% at 20k points: 5% tolerance."""
-    trimesh.creation.box(extents=(20, 20, 20)).export(tmp_path / "gt.obj")
-    trimesh.creation.box(extents=(22, 22, 22)).export(tmp_path / "pred.ply")
-    out = run_cli(tmp_path / "gt.obj", tmp_path / "pred.ply", "--points", 20000, "--json", "--seed", 3)
-    assert out.returncode == 0, out.stderr
-    r = json.loads(out.stdout)
-    assert r["cd_gt_to_pred"] == pytest.approx(0.0995, rel=0.05)
-    assert r["n_faces"] == 12 and r["watertight"] is True and r["seed"] == 3 and r["normalized"] is True
-    # the other options, in-process (same entry point, no interpreter start-up)
-    assert main([str(tmp_path / "gt.obj"), str(tmp_path / "pred.ply"), "--points", "20000", "--json", "--no-normalize"]) == 0
-    assert json.loads(capsys.readouterr().out)["cd_gt_to_pred"] == pytest.approx(1.0, rel=0.05)
-    assert main([str(tmp_path / "gt.obj"), str(tmp_path / "pred.ply"), "--points", "5000", "--preset", "ndc"]) == 0
-    table = capsys.readouterr().out
-    assert "CD (x100000)" in table and "F1@0.003" in table and "watertight yes" in table
-
-
-def test_cli_bad_path_exits_2_with_one_line(tmp_path, capsys):
-    trimesh.creation.box().export(tmp_path / "gt.obj")
-    out = run_cli(tmp_path / "gt.obj", tmp_path / "missing.obj")
-    assert out.returncode == 2 and out.stdout == ""
-    assert len(out.stderr.strip().splitlines()) == 1 and "missing.obj" in out.stderr and "not found" in out.stderr
-    (tmp_path / "junk.obj").write_text("this is not a mesh\n")
-    assert main([str(tmp_path / "junk.obj"), str(tmp_path / "gt.obj")]) == 2
-    err = capsys.readouterr().err
-    assert len(err.strip().splitlines()) == 1 and "junk.obj" in err
-
-
-def test_too_dense_edge_search_is_refused_not_crashed():
-    """A prediction 1000x smaller than the GT: all its samples lie within one edge radius, so the
-    exact search would test n^2 pairs. It is refused with a one-line reason; ECD/EF1 are NaN."""
-    v, f = box(2.0)
-    points, normals = sample_surface(v * 1e-3, f, 20_000, np.random.default_rng(0))
-    with pytest.raises(M.EdgeSearchTooDense, match="too dense"):
-        M.sharp_edge_points(points, normals, 0.01, max_pairs=1e6)
-    r = M.evaluate(v, f, v * 1e-3, f, n_points=100_000)  # bound ~1e10 > the 1e9 default
-    assert r["edge_search_skipped"].startswith("prediction edge-point search too dense")
-    assert r["pred_edge_points"] == -1 and math.isnan(r["ecd"]) and math.isnan(r["ef1"]) and np.isfinite(r["cd"])

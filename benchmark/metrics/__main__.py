@@ -1,5 +1,11 @@
 """Command line: ``python -m benchmark.metrics GT PRED [--points N] [--preset default|ndc]
-[--seed S] [--json] [--no-normalize]`` scores one predicted mesh file against a GT mesh file."""
+[--seed S] [--json] [--no-normalize]`` scores one predicted mesh file against a GT mesh file.
+
+The prediction is data: whatever its file holds (no faces, NaN vertices, out-of-range indices,
+faces on a line) is scored as :func:`~benchmark.metrics.evaluate` scores it (NaN plus flags) and
+printed, exit status 0. Exit status 2, with one line on stderr, is for what is not data: bad flags,
+a GT that cannot be scored against, a file that is missing or not a readable mesh file.
+"""
 
 from __future__ import annotations
 
@@ -11,6 +17,7 @@ import numpy as np
 from benchmark.metrics.evaluate import evaluate
 from benchmark.metrics.presets import PRESETS, MetricPreset
 from benchmark.serialize import dumps
+from datasets.io import MeshError, canonical_transform, read_mesh_arrays, read_mesh_file
 
 
 def _format_table(result: dict, preset: MetricPreset, frame_note: str) -> str:
@@ -18,7 +25,7 @@ def _format_table(result: dict, preset: MetricPreset, frame_note: str) -> str:
     rows = [("CD", "cd"), ("CD gt->pred", "cd_gt_to_pred"), ("CD pred->gt", "cd_pred_to_gt"), ("NC", "nc")]
     rows += [(f"F1@{t:g}", k) for t, k in zip(preset.f1_thresholds, preset.f1_keys)]
     rows += [("ECD", "ecd"), ("EF1", "ef1")]
-    lines = [preset.describe(), f"seed {result['seed']}, n = {result['n_points']:,} points per mesh; {frame_note}", ""]
+    lines = [preset.describe(result['n_points']), f"seed {result['seed']}, n = {result['n_points']:,} points per mesh; {frame_note}", ""]
     for label, key in rows:
         s = scale.get(key, 1.0)
         name = f"{label} (x{s:g})" if s != 1.0 else label
@@ -34,7 +41,8 @@ def _format_table(result: dict, preset: MetricPreset, frame_note: str) -> str:
     if result["edge_search_skipped"]:
         lines.append(f"  ECD/EF1 not computed: {result['edge_search_skipped']}")
     if result["empty_prediction"]:
-        lines.append("  prediction is EMPTY or degenerate (no area to sample): distance metrics NaN, F1 = 0")
+        lines.append("  prediction is EMPTY or degenerate (no usable face, or its faces lie on a line or a point): "
+                     "distance metrics NaN, F1 = 0")
     if result["dropped_faces"]:
         lines.append(f"  {result['dropped_faces']:,} prediction faces dropped (out-of-range indices or non-finite vertices)")
     lines.append(f"  time {result['seconds']['total_s']:.2f} s")
@@ -55,14 +63,11 @@ def main(argv: list[str] | None = None) -> int:
         "--no-normalize", action="store_true", help="use both meshes as stored (default: map both by the GT's canonical transform)"
     )
     args = parser.parse_args(argv)
-
-    from datasets.io import MeshError, canonical_transform, read_mesh_arrays
-
     try:
         if args.points is not None and args.points < 1:
-            raise MeshError(f"--points must be >= 1, got {args.points}")
+            raise ValueError(f"--points must be >= 1, got {args.points}")
         gt_v, gt_f = read_mesh_arrays(args.gt)
-        pred_v, pred_f = read_mesh_arrays(args.pred)
+        pred_v, pred_f = read_mesh_file(args.pred)  # the prediction's content is scored, not refused
         if args.no_normalize:
             frame_note = "meshes used as stored (--no-normalize)"
         else:
@@ -70,10 +75,12 @@ def main(argv: list[str] | None = None) -> int:
                 transform = canonical_transform(gt_v[np.unique(gt_f)])
             except MeshError as exc:
                 raise MeshError(f"{args.gt}: {exc}") from None
-            gt_v, pred_v = transform.apply(gt_v), transform.apply(pred_v)
+            gt_v = transform.apply(gt_v)
+            with np.errstate(over="ignore", invalid="ignore"):  # beyond float64 there: inf, dropped faces
+                pred_v = transform.apply(pred_v)
             frame_note = "both meshes mapped by the GT's canonical transform"
         result = evaluate(gt_v, gt_f, pred_v, pred_f, preset=args.preset, seed=args.seed, n_points=args.points)
-    except (MeshError, ValueError, MemoryError) as exc:
+    except (ValueError, MemoryError) as exc:  # MeshError is a ValueError
         print(f"error: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}", file=sys.stderr)
         return 2
     result["gt"], result["pred"] = str(args.gt), str(args.pred)
