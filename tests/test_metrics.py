@@ -49,6 +49,9 @@ def test_presets_are_data_with_the_spec_values():
     assert n.f1_keys == ("f1_003",) and n.report_scale["cd"] == 1e5 and n.report_scale["ecd"] == 100
     with pytest.raises(Exception):
         d.n_points = 5  # frozen
+    assert list(M.PRESETS) == ["default", "ndc"] and "ndc" in M.PRESETS
+    with pytest.raises(ValueError, match="^unknown metric preset 'nd'; known metric presets: default, ndc$"):
+        M.evaluate(*box(2.0), *box(2.0), preset="nd", n_points=10)
 
 
 # ---------------------------------------------------------------- analytic distances

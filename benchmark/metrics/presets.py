@@ -12,7 +12,7 @@ from dataclasses import asdict, dataclass
 
 from benchmark.registry import Registry
 
-__all__ = ["HeadlineMetric", "f1_column", "MetricPreset", "PRESETS", "get_preset"]
+__all__ = ["HeadlineMetric", "f1_column", "MetricPreset", "DEFAULT", "NDC", "PRESETS", "get_preset"]
 
 
 @dataclass(frozen=True)
@@ -137,45 +137,47 @@ class MetricPreset:
         return asdict(self)
 
 
-PRESETS: dict[str, MetricPreset] = {
-    "default": MetricPreset(
-        name="default",
-        n_points=1_000_000,
-        frame="canonical",
-        chamfer="l1_half_mean",
-        cd_scale=1e3,
-        f1_thresholds=(0.005, 0.01),
-        edge_units="gt_diagonal",
-        edge_radius=0.004,
-        edge_dot_threshold=0.2,
-        ef1_threshold=0.005,
-        ecd="l1_half_mean",
-        ecd_scale=1e2,
-        empty_edge_fallback=0,
-    ),
-    "ndc": MetricPreset(
-        name="ndc",
-        n_points=100_000,
-        frame="diag1",
-        chamfer="squared_sum",
-        cd_scale=1e5,
-        f1_thresholds=(0.003,),
-        edge_units="frame",
-        edge_radius=0.004,
-        edge_dot_threshold=0.2,
-        ef1_threshold=0.005,
-        ecd="squared_sum",
-        ecd_scale=1e2,
-        empty_edge_fallback=486,
-    ),
-}
+#: The canonical protocol (SPEC section 7).
+DEFAULT = MetricPreset(
+    name="default",
+    n_points=1_000_000,
+    frame="canonical",
+    chamfer="l1_half_mean",
+    cd_scale=1e3,
+    f1_thresholds=(0.005, 0.01),
+    edge_units="gt_diagonal",
+    edge_radius=0.004,
+    edge_dot_threshold=0.2,
+    ef1_threshold=0.005,
+    ecd="l1_half_mean",
+    ecd_scale=1e2,
+    empty_edge_fallback=0,
+)
 
+#: Neural Dual Contouring's evaluation script (Chen et al. 2022, ``eval_cd_nc_f1_ecd_ef1.py``).
+NDC = MetricPreset(
+    name="ndc",
+    n_points=100_000,
+    frame="diag1",
+    chamfer="squared_sum",
+    cd_scale=1e5,
+    f1_thresholds=(0.003,),
+    edge_units="frame",
+    edge_radius=0.004,
+    edge_dot_threshold=0.2,
+    ef1_threshold=0.005,
+    ecd="squared_sum",
+    ecd_scale=1e2,
+    empty_edge_fallback=486,
+)
 
-_NAMED: Registry[MetricPreset] = Registry("metric preset")
-for _preset in PRESETS.values():
-    _NAMED.register(_preset.name, _preset)
+#: The presets by name (``PRESETS["ndc"]``, ``"ndc" in PRESETS``, ``list(PRESETS)``); an unknown
+#: name gets the project's one message: "unknown metric preset 'x'; known metric presets: ...".
+PRESETS: Registry[MetricPreset] = Registry("metric preset")
+PRESETS.register(DEFAULT.name, DEFAULT)
+PRESETS.register(NDC.name, NDC)
 
 
 def get_preset(preset: str | MetricPreset) -> MetricPreset:
     """``preset`` itself, or the preset of that name (ValueError naming the known presets)."""
-    return preset if isinstance(preset, MetricPreset) else _NAMED.get(preset)
+    return preset if isinstance(preset, MetricPreset) else PRESETS.get(preset)
