@@ -25,8 +25,10 @@ ECD squared and summed (tables x 100), EF1@0.005, and 486 points at the origin s
 prediction's edge points when it has none. Presets are data (:class:`MetricPreset`), not code paths.
 
 The raw values are returned (never scaled); :attr:`MetricPreset.report_scale` gives the table
-multipliers. Predictions that are empty or degenerate never raise: their distance metrics are NaN,
-F1/EF1 are 0 and ``empty_prediction`` is set. Mesh validity (vertex/face counts, boundary and
+multipliers. Predictions that are empty or degenerate (no usable face, or faces that lie on a line
+or a point relative to their own size) never raise: their distance metrics are NaN, F1/EF1 are 0
+and ``empty_prediction`` is set. Any scale works (1e-300 to 1e300: exact power-of-two rescales,
+:mod:`benchmark.surface`). Mesh validity (vertex/face counts, boundary and
 non-manifold edges, components, watertightness) is counted on the prediction's faces *as given*,
 vertices not merged (:func:`mesh_validity`).
 
