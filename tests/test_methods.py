@@ -173,7 +173,7 @@ def test_tiny_neural_fit_on_a_sphere(name, sphere):
     finally:
         torch.set_num_threads(old)
     assert np.isfinite(res.final_loss) and res.final_loss < res.losses[:10].mean()
-    assert 0 < info["query_fraction"] <= 1
+    assert info["query_fraction"] > 0  # (coarse + fine) / dense evaluations; above 1 when most blocks are near
     r = evaluate(V, F, ex.vertices, ex.faces, n_points=10_000)
     print(name, r["cd"], res.final_loss)
     assert r["cd"] < NEURAL_CD_BOUND[name]

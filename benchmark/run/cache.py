@@ -54,6 +54,24 @@ def _is_module(name: str) -> bool:
     return spec is not None and bool(spec.origin) and spec.origin.endswith(".py")
 
 
+def _defines(path: Path, attribute: str) -> bool:
+    """True when a module's top level binds ``attribute`` (def, class, assignment or import)."""
+    for node in ast.parse(path.read_text(encoding="utf-8")).body:
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)) and node.name == attribute:
+            return True
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            if any((a.asname or a.name.split(".")[0]) == attribute for a in node.names):
+                return True
+        targets = list(node.targets) if isinstance(node, ast.Assign) else [getattr(node, "target", None)]
+        while targets:
+            t = targets.pop()
+            if isinstance(t, (ast.Tuple, ast.List)):
+                targets.extend(t.elts)
+            elif isinstance(t, ast.Name) and t.id == attribute:
+                return True
+    return False
+
+
 def _imports(name: str, path: Path) -> set[str]:
     """Project modules named by the import statements of one module (relative ones resolved).
 
@@ -62,7 +80,7 @@ def _imports(name: str, path: Path) -> set[str]:
     tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
     required: set[str] = set()
-    optional: set[str] = set()
+    optional: set[tuple[str, str]] = set()
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             required.update(a.name for a in node.names)
@@ -72,18 +90,27 @@ def _imports(name: str, path: Path) -> set[str]:
                 parts = package.split(".")
                 base = ".".join(parts[: len(parts) - node.level + 1] + ([base] if base else []))
             required.add(base)
-            optional.update(f"{base}.{a.name}" for a in node.names)
-    project = lambda mods: {m for m in mods if m.split(".")[0] in PROJECT_PACKAGES}  # noqa: E731
-    for mod in project(required):
+            optional.update((base, a.name) for a in node.names)
+    required = {m for m in required if m.split(".")[0] in PROJECT_PACKAGES}
+    for mod in required:
         if not _is_module(mod):
             raise ModuleNotFoundError(f"code digest: '{name}' imports '{mod}', which does not exist")
-    return project(required) | {m for m in project(optional) if _is_module(m)}
+    found = set(required)
+    for base, attribute in optional:
+        if base not in required:
+            continue
+        if _is_module(f"{base}.{attribute}"):
+            found.add(f"{base}.{attribute}")
+        elif attribute != "*" and not _defines(_module_file(base), attribute):
+            raise ModuleNotFoundError(f"code digest: '{name}' imports '{base}.{attribute}', which does not exist")
+    return found
 
 
 @lru_cache(maxsize=None)
 def code_digest(*modules: str) -> str:
     """SHA-256 (16 hex) over the source files of ``modules`` and the project modules they import,
     transitively (module docstring)."""
+    importlib.invalidate_caches()
     seen: dict[str, Path] = {}
     todo = list(modules)
     while todo:

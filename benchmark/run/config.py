@@ -115,7 +115,8 @@ class RunConfig:
 
         choice("--task", self.task, TASKS)
         choice("--mode", self.mode, MODES)
-        choice("--executor", self.executor, tuple(EXECUTORS.names()))
+        if self.executor not in EXECUTORS:
+            raise ConfigError(f"--executor: {EXECUTORS.unknown(self.executor)}")
         if self.grid < MIN_GRID:
             raise ConfigError(f"--grid must be >= {MIN_GRID} points per axis, got {self.grid}")
         memory = machine_memory_bytes()
