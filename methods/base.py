@@ -76,10 +76,6 @@ class Method:
         for key, value in params.items():
             self.params[key] = self.parameters[key].parse(value, f"{self.name}.{key}")
 
-    @classmethod
-    def default_params(cls) -> dict[str, Any]:
-        return {k: p.default for k, p in cls.parameters.items()}
-
     @property
     def input_dim(self) -> int:
         return 3 if self.input_kind == "points" else 6

@@ -35,7 +35,7 @@ import numpy as np
 import torch
 from scipy.ndimage import binary_dilation
 
-from benchmark.grid import LOWER, edge_endpoints, edge_shape, num_edges, spacing
+from benchmark.grid import LOWER, edge_endpoint_values, edge_endpoints, num_edges, spacing
 from methods.device import get_device, synchronize
 
 #: Rows per forward pass (ENVIRONMENT.md: 16k-65k chunks are much faster than 1M on the CPU).
@@ -238,14 +238,8 @@ def _coarse_edges(N: int, cidx: np.ndarray):
 
 def edges_in_points(N: int, mask: np.ndarray) -> np.ndarray:
     """(E,) bool in flat edge order: both endpoints of the edge are in the point mask (N, N, N)."""
-    parts = []
-    for a in range(3):
-        lo = [slice(None)] * 3
-        hi = [slice(None)] * 3
-        lo[a], hi[a] = slice(0, N - 1), slice(1, N)
-        parts.append((mask[tuple(lo)] & mask[tuple(hi)]).reshape(-1))
-        assert parts[-1].size == np.prod(edge_shape(N, a))
-    return np.concatenate(parts)
+    lower, upper = edge_endpoint_values(mask)
+    return lower & upper
 
 
 def sparse_grid_edges(model, N: int, near: Callable[[np.ndarray], np.ndarray], device=None,

@@ -1,4 +1,4 @@
-"""Executors (benchmark.executors): local, process and Ray give the same results; failures are recorded.
+"""Executors (benchmark.run.executors): local, process and Ray give the same results; failures are recorded.
 
 Tolerance: oracle mode is deterministic (exact fields, seeded metric samples, no thread-count
 dependent reductions), so the tables of the three executors must be *identical*; only timings,
