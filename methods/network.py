@@ -1,8 +1,15 @@
-"""The MLP every method fits (SPEC section 5) and a denormal-free, value-identical Softplus(beta).
+"""The networks every method fits: the MLP of SPEC section 5 and a feature-grid backbone.
 
-*paper* network: 9 linear layers of width 512 (input -> 512, 7 x (512 -> 512), 512 -> out),
-Softplus(beta = 100) after every layer but the last, no positional encoding. ``depth`` counts the
-linear layers; ``width`` is the hidden width.
+Backbones (:data:`BACKBONES`, chosen by the budget, :mod:`methods.fitting`):
+
+* ``'mlp'``: *paper* network: 9 linear layers of width 512 (input -> 512, 7 x (512 -> 512),
+  512 -> out), Softplus(beta = 100) after every layer but the last, no positional encoding.
+  ``depth`` counts the linear layers; ``width`` is the hidden width.
+* ``'grid'``: :class:`GridNetwork`, a multi-resolution dense feature grid (:class:`FeatureGrid`) in
+  front of a small MLP of the same kind (the Instant-NGP / NGLOD / NeuS2 family of per-shape fits,
+  with dense levels instead of a hash table). Every input point p of the canonical cube is
+  encoded as ``[enc(p), p]``; a segment (u, v) is encoded as ``[enc(u), u, enc(v), v]`` with the
+  *same* grid, so the field stays a function of the segment (see :class:`GridNetwork`).
 
 Clamped Softplus
 ----------------
@@ -21,6 +28,8 @@ derivatives (``create_graph=True``, needed by the UDF gradient loss) work.
 
 from __future__ import annotations
 
+from typing import Sequence
+
 import torch
 from torch import nn
 
@@ -30,6 +39,9 @@ CLAMP = 30.0
 THRESHOLD = 20.0
 #: Scale of the output layer's default initial weights (bias 0): outputs start near 0.
 OUTPUT_INIT_SCALE = 0.01
+#: Feature-grid values start uniform in [-GRID_INIT_SCALE, GRID_INIT_SCALE] (Instant-NGP's 1e-4):
+#: the network starts as the MLP of the raw coordinates, and the grid learns the detail.
+GRID_INIT_SCALE = 1e-4
 
 
 class _FastSoftplus(torch.autograd.Function):
@@ -115,7 +127,141 @@ class MLP(nn.Module):
         return self.layers(x)
 
 
+def trilinear(volume: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """Trilinear interpolation of a dense grid of features on the cube [-1, 1]^3.
+
+    Parameters
+    ----------
+    volume : (R, R, R, C) tensor, ``R >= 2``; ``volume[i, j, k]`` is the feature at the grid point
+        ``(-1 + 2 i / (R - 1), -1 + 2 j / (R - 1), -1 + 2 k / (R - 1))`` (corners on the cube's faces).
+    points : (P, 3) tensor of (x, y, z) in the same dtype.
+
+    Returns
+    -------
+    (P, C) tensor: the weighted sum of the features at the 8 corners of each point's cell. Points
+    outside the cube take the value at the nearest point of the cube (their coordinates are clamped,
+    so the gradient along a clamped axis is 0): the same values as ``grid_sample(...,
+    align_corners=True, padding_mode='border')``.
+
+    Notes
+    -----
+    An explicit gather (one ``index_select`` of the 8 corner rows, then a lerp along x, y and z): its
+    backward adds each point's 8 weighted gradients into their rows (``index_add``). Chosen over
+    ``torch.nn.functional.grid_sample`` (the same values) by measurement: faster with a second-order
+    loss, on par with a first-order one (benchmarks/bench_network.py).
+    Differentiable to any order in ``points`` and ``volume`` (the weights are products of the
+    fractional coordinates, the features enter linearly); inside a cell the value is linear along
+    each axis, so its derivative is piecewise constant.
+    """
+    R, C = volume.shape[0], volume.shape[-1]
+    t = ((points + 1.0) * (0.5 * (R - 1))).clamp(0.0, R - 1.0)
+    cell = t.detach().floor().clamp(max=R - 2)  # the last cell owns the upper face
+    frac = t - cell  # (P, 3) in [0, 1], carries the gradient in the points
+    cell = cell.long()
+    base = (cell[:, 0] * R + cell[:, 1]) * R + cell[:, 2]
+    corner = torch.tensor([0, 1], device=points.device)
+    offsets = (corner[:, None, None] * (R * R) + corner[None, :, None] * R + corner[None, None, :]).reshape(8)
+    corners = volume.reshape(R * R * R, C).index_select(0, (base[:, None] + offsets).reshape(-1))
+    c = corners.reshape(-1, 2, 2, 2, C)  # c[p, a, b, d] = volume[i + a, j + b, k + d]
+    c = torch.lerp(c[:, 0], c[:, 1], frac[:, 0, None, None, None])  # along x
+    c = torch.lerp(c[:, 0], c[:, 1], frac[:, 1, None, None])  # along y
+    return torch.lerp(c[:, 0], c[:, 1], frac[:, 2, None])  # along z
+
+
+class FeatureGrid(nn.Module):
+    """Multi-resolution dense feature grid on the canonical cube [-1, 1]^3.
+
+    Level l is a learnable (R_l, R_l, R_l, C) volume of ``resolutions[l]`` points per axis (the
+    cube's faces included), initialised uniform in +-:data:`GRID_INIT_SCALE`. A point's encoding is
+    the :func:`trilinear` feature of every level, concatenated coarse to fine: (P, 3) -> (P, L C).
+
+    Parameters
+    ----------
+    resolutions : points per axis of each level, each >= 2 (e.g. (16, 32, 64)).
+    channels : features per grid point, C >= 1.
+    """
+
+    def __init__(self, resolutions: Sequence[int], channels: int):
+        super().__init__()
+        resolutions = tuple(int(r) for r in resolutions)
+        if not resolutions or min(resolutions) < 2:
+            raise ValueError(f"grid resolutions must be >= 2 points per axis, got {resolutions}")
+        if channels < 1:
+            raise ValueError(f"grid channels must be >= 1, got {channels}")
+        self.resolutions, self.channels = resolutions, int(channels)
+        self.levels = nn.ParameterList(
+            nn.Parameter(torch.empty(r, r, r, self.channels).uniform_(-GRID_INIT_SCALE, GRID_INIT_SCALE))
+            for r in resolutions)
+
+    @property
+    def out_dim(self) -> int:
+        """Features per point: levels x channels."""
+        return len(self.resolutions) * self.channels
+
+    def forward(self, points: torch.Tensor) -> torch.Tensor:
+        return torch.cat([trilinear(level, points) for level in self.levels], dim=1)
+
+
+class GridNetwork(nn.Module):
+    """The ``'grid'`` backbone: a :class:`FeatureGrid` then an :class:`MLP` head.
+
+    The input (B, 3 k) holds k points of the canonical cube per sample (k = 1: a point x; k = 2: a
+    segment [u, v]). Each point p is encoded by the one grid as ``[enc(p), p]`` (the raw coordinates
+    keep the coarse shape and the field outside the cube) and the k codes are concatenated:
+    ``head([enc(x), x])`` for points, ``head([enc(u), u, enc(v), v])`` for segments. u and v go
+    through the same grid weights in one call, so there is no second encoder; ``v - u`` is not added,
+    as the head's first linear layer already spans it.
+
+    The head is ``MLP(k (L C + 3), out_dim, depth, width, beta, activation)``, with the MLP's
+    near-zero output initialisation; the grid is built first, then the head (this fixes the
+    parameter order, hence the weights a seed gives).
+    """
+
+    def __init__(self, in_dim: int, out_dim: int, depth: int, width: int, beta: float, activation: str,
+                 grid_resolutions: Sequence[int], grid_channels: int):
+        super().__init__()
+        if in_dim < 3 or in_dim % 3:
+            raise ValueError(f"the grid backbone takes points of 3 coordinates (in_dim 3, 6, ...), got in_dim {in_dim}")
+        self.encoder = FeatureGrid(grid_resolutions, grid_channels)
+        self.head = MLP(in_dim // 3 * (self.encoder.out_dim + 3), out_dim, depth=depth, width=width, beta=beta,
+                        activation=activation)
+        self.config = dict(backbone="grid", in_dim=int(in_dim), out_dim=int(out_dim), depth=int(depth),
+                           width=int(width), beta=float(beta), activation=activation,
+                           grid_resolutions=self.encoder.resolutions, grid_channels=self.encoder.channels)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        points = x.reshape(-1, 3)  # (B k, 3): u and v of a segment on consecutive rows
+        codes = torch.cat([self.encoder(points), points], dim=1)
+        return self.head(codes.reshape(x.shape[0], -1))
+
+
+#: Backbone names (the budget's ``backbone``).
+BACKBONES = ("mlp", "grid")
+
+
 def make_network(in_dim: int, out_dim: int, depth: int = 9, width: int = 512, beta: float = 100.0,
-                 activation: str = "softplus") -> MLP:
-    """The network of SPEC section 5 (defaults = *paper*: 9 layers, width 512, Softplus(100))."""
-    return MLP(in_dim, out_dim, depth=depth, width=width, beta=beta, activation=activation)
+                 activation: str = "softplus", backbone: str = "mlp",
+                 grid_resolutions: Sequence[int] | None = None, grid_channels: int | None = None) -> nn.Module:
+    """The network a budget names (defaults = *paper*: the 9 x 512 Softplus(100) MLP of SPEC section 5).
+
+    Parameters
+    ----------
+    in_dim, out_dim : input size (3: points, 6: segments) and output size.
+    depth, width, beta, activation : the MLP (``'mlp'``) or the grid backbone's head (``'grid'``).
+    backbone : ``'mlp'`` (:class:`MLP`) or ``'grid'`` (:class:`GridNetwork`).
+    grid_resolutions, grid_channels : the :class:`FeatureGrid` (``'grid'`` only; required there,
+        refused for ``'mlp'``).
+
+    ``make_network(**model.config)`` rebuilds any network made here (a config without ``backbone``,
+    as every MLP's, is an MLP).
+    """
+    if backbone not in BACKBONES:
+        raise ValueError(f"unknown backbone '{backbone}'; known: {', '.join(BACKBONES)}")
+    grid_given = grid_resolutions is not None or grid_channels is not None
+    if backbone == "mlp":
+        if grid_given:
+            raise ValueError("grid_resolutions/grid_channels are settings of the 'grid' backbone, not of 'mlp'")
+        return MLP(in_dim, out_dim, depth=depth, width=width, beta=beta, activation=activation)
+    if grid_resolutions is None or grid_channels is None:
+        raise ValueError("the 'grid' backbone needs grid_resolutions and grid_channels")
+    return GridNetwork(in_dim, out_dim, depth, width, beta, activation, grid_resolutions, grid_channels)

@@ -1,10 +1,12 @@
-"""The MLP of SPEC section 5 and the clamped Softplus(beta) (same values and derivatives as torch's)."""
+"""The MLP of SPEC section 5, the clamped Softplus(beta) (same values and derivatives as torch's) and the
+grid backbone (trilinear feature grid shared by a segment's endpoints, derivatives to second order)."""
 
 import pytest
 import torch
 import torch.nn.functional as F
 
-from methods.network import ACTIVATIONS, fast_softplus, make_network
+from methods.network import (ACTIVATIONS, GRID_INIT_SCALE, FeatureGrid, GridNetwork, fast_softplus, make_network,
+                             trilinear)
 
 BETA = 100.0
 
@@ -66,3 +68,122 @@ def test_all_activations_agree_on_softplus_family_and_bad_config_errors():
         make_network(3, 1, depth=1)
     with pytest.raises(ValueError, match="known: softplus"):
         make_network(3, 1, activation="tanh")
+
+
+# ---------------------------------------------------------------------------------------------
+# grid backbone
+# ---------------------------------------------------------------------------------------------
+GRID = dict(depth=3, width=16, backbone="grid", grid_resolutions=(3, 5), grid_channels=2)
+
+
+def _random_volume(R, C, seed=0, dtype=torch.float64):
+    return torch.randn(R, R, R, C, generator=torch.Generator().manual_seed(seed), dtype=dtype)
+
+
+def test_trilinear_hand_values_linear_fields_and_border():
+    """Grid points return their own value; a linear field is reproduced exactly anywhere in the cube
+    (trilinear interpolation is exact on linear functions); outside, the nearest point of the cube."""
+    R = 5
+    axis = torch.linspace(-1, 1, R, dtype=torch.float64)
+    X, Y, Z = torch.meshgrid(axis, axis, axis, indexing="ij")
+    linear = torch.stack([0.3 * X - 2.0 * Y + 0.5 * Z + 0.25, X + Y + Z], dim=-1)  # (R, R, R, 2)
+    p = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0], [0.5, -0.5, 0.0], [0.123, -0.777, 0.951]],
+                     dtype=torch.float64)
+    expected = torch.stack([0.3 * p[:, 0] - 2.0 * p[:, 1] + 0.5 * p[:, 2] + 0.25, p.sum(dim=1)], dim=1)
+    assert torch.allclose(trilinear(linear, p), expected, atol=1e-14)
+    vol = _random_volume(R, 3)
+    assert torch.equal(trilinear(vol, torch.tensor([[-0.5, 0.0, 1.0]], dtype=torch.float64))[0], vol[1, 2, 4])
+    outside = torch.tensor([[1.7, -0.2, -3.0]], dtype=torch.float64)
+    assert torch.equal(trilinear(vol, outside), trilinear(vol, outside.clamp(-1, 1)))
+
+
+def test_trilinear_matches_grid_sample():
+    """The same values as torch's grid_sample(align_corners=True, padding_mode='border'), whose x indexes
+    the last volume axis: volume[i, j, k] <-> input[0, :, k, j, i]."""
+    vol = _random_volume(6, 4)
+    p = torch.rand(500, 3, generator=torch.Generator().manual_seed(1), dtype=torch.float64) * 2.4 - 1.2
+    ref = F.grid_sample(vol.permute(3, 2, 1, 0)[None], p.view(1, -1, 1, 1, 3), mode="bilinear",
+                        padding_mode="border", align_corners=True).view(4, -1).t()
+    assert torch.allclose(trilinear(vol, p), ref, atol=1e-13)
+
+
+def test_trilinear_gradcheck_and_gradgradcheck():
+    """First and second derivatives in the points and the grid values (float64, a 3^3 grid with 2 cells
+    per axis); the points lie away from cell faces, one is outside the cube (clamped axis)."""
+    vol = _random_volume(3, 2).requires_grad_(True)
+    p = torch.tensor([[0.31, -0.42, 0.77], [-0.83, 0.12, -0.27], [0.55, 0.64, -0.91], [1.3, -0.36, 0.48]],
+                     dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(trilinear, (vol, p))
+    assert torch.autograd.gradgradcheck(trilinear, (vol, p))
+
+
+def test_grid_network_input_gradcheck_second_order():
+    """The whole grid network (grid + Softplus head, float64): d out/d input and its derivative, as the
+    SALS normals (first order) and the UDF gradient loss (second order, create_graph) use them."""
+    torch.manual_seed(0)
+    net = make_network(6, 2, **GRID).double()
+    with torch.no_grad():  # values of order 1, so the grid's part of the derivative is not negligible
+        for level in net.encoder.levels:
+            level.normal_()
+    x = torch.tensor([[0.31, -0.42, 0.77, 0.35, -0.40, 0.71], [-0.83, 0.12, -0.27, -0.78, 0.18, -0.33]],
+                     dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(net, (x,))
+    assert torch.autograd.gradgradcheck(net, (x,))
+
+
+def test_grid_network_shapes_parameters_and_config():
+    torch.manual_seed(0)
+    points = make_network(3, 1, depth=3, width=64, backbone="grid", grid_resolutions=(16, 32, 64), grid_channels=4)
+    segments = make_network(6, 2, depth=3, width=64, backbone="grid", grid_resolutions=(16, 32, 64), grid_channels=4)
+    assert points(torch.zeros(7, 3)).shape == (7, 1) and segments(torch.zeros(7, 6)).shape == (7, 2)
+    grid_values = (16 ** 3 + 32 ** 3 + 64 ** 3) * 4
+    head = lambda n_in, n_out: (n_in * 64 + 64) + (64 * 64 + 64) + (64 * n_out + n_out)  # noqa: E731
+    assert sum(p.numel() for p in points.parameters()) == grid_values + head(3 * 4 + 3, 1)
+    assert sum(p.numel() for p in segments.parameters()) == grid_values + head(2 * (3 * 4 + 3), 2)
+    assert all(level.abs().max() <= GRID_INIT_SCALE for level in points.encoder.levels)
+    assert segments.config == dict(backbone="grid", in_dim=6, out_dim=2, depth=3, width=64, beta=100.0,
+                                   activation="softplus", grid_resolutions=(16, 32, 64), grid_channels=4)
+    rebuilt = make_network(**segments.config)
+    rebuilt.load_state_dict(segments.state_dict())
+    x = torch.rand(50, 6) * 2 - 1
+    assert torch.equal(rebuilt(x), segments(x))
+
+
+def test_segments_share_one_encoder_and_swapping_u_v_swaps_the_code_blocks():
+    """One FeatureGrid serves u and v: the head reads [enc(u), u, enc(v), v], so (v, u) gives the same two
+    blocks swapped; the network's parameters are exactly that grid's and the head's."""
+    torch.manual_seed(0)
+    net = make_network(6, 2, **GRID)
+    assert [type(m) for m in net.modules()].count(FeatureGrid) == 1
+    ids = lambda module: {id(p) for p in module.parameters()}  # noqa: E731
+    assert ids(net) == ids(net.encoder) | ids(net.head)
+    with torch.no_grad():
+        for level in net.encoder.levels:
+            level.normal_()
+    codes = []
+    net.head.register_forward_pre_hook(lambda module, args: codes.append(args[0]))
+    g = torch.Generator().manual_seed(2)
+    u, v = torch.rand(10, 3, generator=g) * 2 - 1, torch.rand(10, 3, generator=g) * 2 - 1
+    net(torch.cat([u, v], dim=1))
+    net(torch.cat([v, u], dim=1))
+    n = net.encoder.out_dim + 3
+    assert codes[0].shape == (10, 2 * n)
+    assert torch.equal(codes[0][:, :n], torch.cat([net.encoder(u), u], dim=1))
+    assert torch.equal(codes[0][:, n:], torch.cat([net.encoder(v), v], dim=1))
+    assert torch.equal(codes[1], torch.cat([codes[0][:, n:], codes[0][:, :n]], dim=1))
+
+
+def test_backbone_errors():
+    with pytest.raises(ValueError, match="unknown backbone 'hash'; known: mlp, grid"):
+        make_network(3, 1, backbone="hash")
+    with pytest.raises(ValueError, match="not of 'mlp'"):
+        make_network(3, 1, grid_channels=4)
+    with pytest.raises(ValueError, match="needs grid_resolutions and grid_channels"):
+        make_network(3, 1, backbone="grid", grid_channels=4)
+    with pytest.raises(ValueError, match="in_dim 3, 6"):
+        make_network(4, 1, **GRID)
+    with pytest.raises(ValueError, match=">= 2 points per axis"):
+        FeatureGrid((1, 4), 2)
+    with pytest.raises(ValueError, match="channels must be >= 1"):
+        FeatureGrid((4,), 0)
+    assert isinstance(make_network(3, 1, **GRID), GridNetwork)
