@@ -147,8 +147,11 @@ def trilinear(volume: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     -----
     An explicit gather (one ``index_select`` of the 8 corner rows, then a lerp along x, y and z): its
     backward adds each point's 8 weighted gradients into their rows (``index_add``). Chosen over
-    ``torch.nn.functional.grid_sample`` (the same values) by measurement: faster with a second-order
-    loss, on par with a first-order one (benchmarks/bench_network.py).
+    ``torch.nn.functional.grid_sample`` (the same values) by measurement of whole training steps at
+    batch 4,096 (benchmarks/bench_network.py, one core): with the UDF's second-order loss grid_sample
+    took 1.4-1.6x the time (levels 16/32/64) and 2.3-2.5x (16/32/64/128); with a first-order loss
+    the two were within 8%. The slowdown of a 128^3 level is mostly the optimizer's dense pass over
+    its 8.4M values, for either lookup (see ``Budget.fused_adam`` in :mod:`methods.fitting`).
     Differentiable to any order in ``points`` and ``volume`` (the weights are products of the
     fractional coordinates, the features enter linearly); inside a cell the value is linear along
     each axis, so its derivative is piecewise constant.
