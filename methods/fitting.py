@@ -23,7 +23,7 @@ import io
 import math
 import time
 from dataclasses import asdict, dataclass
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 import torch
@@ -181,7 +181,8 @@ def _to_tensors(inputs: np.ndarray, targets: dict, device) -> tuple[torch.Tensor
 
 
 def fit(method, samples, targets: dict, budget: str | Budget, seed: int = 0, device=None,
-        progress: Callable[..., None] | None = None) -> FitResult:
+        progress: Callable[..., None] | None = None, checkpoints: Sequence[int] = (),
+        on_checkpoint: Callable[[int, float, torch.nn.Module], None] | None = None) -> FitResult:
     """Fit ``method``'s network to ``targets`` on ``samples`` under ``budget`` (see module docstring).
 
     Parameters
@@ -193,6 +194,10 @@ def fit(method, samples, targets: dict, budget: str | Budget, seed: int = 0, dev
     seed : initialisation and batch-order seed.
     device : torch device (default: :func:`methods.device.get_device`).
     progress : optional ``progress(step=int, loss=float)`` called every ``budget.log_every`` steps.
+    checkpoints, on_checkpoint : after each step number in ``checkpoints`` (1-based, <= iterations)
+        the fit pauses and calls ``on_checkpoint(step, fit_seconds_so_far, model)`` with the model in
+        eval mode (anytime curves). The pause is not counted in the fit's seconds and changes nothing
+        about the fit: the weights and losses are those of a fit without checkpoints.
     """
     budget = get_budget(budget)
     device = get_device(device)
@@ -209,6 +214,10 @@ def fit(method, samples, targets: dict, budget: str | Budget, seed: int = 0, dev
     T, B = int(budget.iterations), int(budget.batch_size)
     losses = torch.zeros(T, dtype=torch.float32, device=device)
     every = max(1, int(budget.log_every))
+    pause_at = {int(c) for c in checkpoints}
+    if pause_at and (min(pause_at) < 1 or max(pause_at) > T or on_checkpoint is None):
+        raise ValueError(f"checkpoints must be steps in [1, {T}] with an on_checkpoint callback, got {sorted(pause_at)}")
+    paused = 0.0
     synchronize(device)
     t0 = time.perf_counter()
     for step in range(T):
@@ -232,8 +241,15 @@ def fit(method, samples, targets: dict, budget: str | Budget, seed: int = 0, dev
                                    f"budget '{budget.name}', seed {seed})")
             if progress is not None:
                 progress(step=step + 1, loss=float(window[-1]))
+        if step + 1 in pause_at:
+            synchronize(device)
+            t_pause = time.perf_counter()
+            model.eval()
+            on_checkpoint(step + 1, t_pause - t0 - paused, model)
+            model.train()
+            paused += time.perf_counter() - t_pause
     synchronize(device)
-    seconds = time.perf_counter() - t0
+    seconds = time.perf_counter() - t0 - paused
     model.eval()
     curve = losses.cpu().numpy()
     final = float(np.mean(curve[-every:]))

@@ -35,11 +35,14 @@ __all__ = ["write_reports", "compare_runs", "render_mesh"]
 
 
 def write_reports(results: pd.DataFrame, floor: pd.DataFrame | None, context: dict, out_dir: Path,
-                  meshes_dir: Path | None = None, *, gallery_limit: int = GALLERY_LIMIT) -> dict[str, Path]:
+                  meshes_dir: Path | None = None, *, gallery_limit: int = GALLERY_LIMIT,
+                  checkpoints: pd.DataFrame | None = None) -> dict[str, Path]:
     """Write the run's tables and report into ``out_dir``; returns {file name: path}.
 
     Tables first (cheap), then report.html, which renders thumbnails from
     ``meshes_dir/<shape>/gt.ply`` and ``<method>.ply`` for the first ``gallery_limit`` shapes.
+    ``checkpoints`` (one row per checkpoint of a fit: method, shape, seed, fraction,
+    fit_elapsed_s, metrics) adds the anytime curves to the report.
     """
     out_dir = Path(out_dir)
     summary = build_summary(results, floor, context)
@@ -48,7 +51,7 @@ def write_reports(results: pd.DataFrame, floor: pd.DataFrame | None, context: di
     paths.update(timing_paths)
     paths["report.html"] = write_html(out_dir / "report.html", summary, timing, context,
                                       Path(meshes_dir) if meshes_dir is not None else None,
-                                      gallery_limit=gallery_limit)
+                                      gallery_limit=gallery_limit, checkpoints=checkpoints)
     return paths
 
 

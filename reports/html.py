@@ -240,6 +240,13 @@ def _timing_html(timing: pd.DataFrame, context: dict, results: pd.DataFrame) -> 
             + table_html(timing_table(timing, "mean_s", caption)) + f'<p class="note">{esc(caption)}</p>')
 
 
+def _anytime_html(checkpoints: pd.DataFrame, summary: Summary, colors: dict) -> str:
+    return (plot_html(plots.anytime_plot, checkpoints, summary.metrics, colors, alt="metric against fit seconds")
+            + '<p class="note">Each checkpoint pauses the fit at a fraction of its budget and scores the network '
+              'as it is then (same grid, extractor and metric samples); thick lines: mean over shapes and seeds, '
+              'thin lines: one shape. Fit seconds exclude the checkpoints themselves.</p>')
+
+
 def _page(title: str, subtitle: str, chips: list[tuple[str, str]], sections: list[tuple[str, str, str]]) -> str:
     chip_html = "".join(f'<span class="chip"><b>{esc(k)}</b>{esc(v)}</span>' for k, v in chips)
     nav = "".join(f'<a href="#{sid}">{esc(name)}</a>' for sid, name, _ in sections)
@@ -258,7 +265,8 @@ def _page(title: str, subtitle: str, chips: list[tuple[str, str]], sections: lis
 
 
 def write_html(path: Path, summary: Summary, timing: pd.DataFrame, context: dict, meshes_dir: Path | None = None,
-               *, gallery_limit: int = GALLERY_LIMIT, thumb_size: int = 256) -> Path:
+               *, gallery_limit: int = GALLERY_LIMIT, thumb_size: int = 256,
+               checkpoints: pd.DataFrame | None = None) -> Path:
     """Write report.html for one run (see the module docstring); returns ``path``."""
     results = summary.results
     colors = method_colors(summary.methods)
@@ -284,6 +292,7 @@ def write_html(path: Path, summary: Summary, timing: pd.DataFrame, context: dict
         ("gallery", "Gallery", gallery),
         ("per-shape", "Per shape", per_shape + shape_tables),
         ("validity", "Mesh validity", table_html(t["validity"])),
+        *([("anytime", "Anytime curves", _anytime_html(checkpoints, summary, colors))] if checkpoints is not None else []),
         ("timing", "Timing", _timing_html(timing, context, results)),
         ("failed", f"Failed jobs ({n_failed})", _failed_html(summary)),
         ("protocol", "Protocol", _protocol_html(context) + context_html),

@@ -180,3 +180,34 @@ def comparison_plot(runs) -> bytes | None:
         axes[0].legend(frameon=False, fontsize=8)
         fig.tight_layout()
         return _svg(fig)
+
+
+def anytime_plot(checkpoints: pd.DataFrame, metrics: list, colors: dict) -> bytes | None:
+    """Anytime curves: one panel per key metric (CD, ECD, EF1 when present) against fit seconds,
+    one line per method through its checkpoints (mean over shapes and seeds of the metric and of
+    the elapsed fit seconds at each checkpoint fraction); each shape's own curve is drawn thin.
+    ``checkpoints``: the checkpoints frame (method, shape, seed, fraction, fit_elapsed_s, metrics).
+    None when there is nothing to plot."""
+    wanted = _plotted(metrics)
+    if checkpoints is None or checkpoints.empty or not wanted:
+        return None
+    methods = method_order(checkpoints["method"])
+    with matplotlib.rc_context(STYLE):
+        fig = Figure(figsize=(3.6 * len(wanted) + 0.8, 3.2))
+        axes = np.atleast_1d(fig.subplots(1, len(wanted)))
+        for ax, metric in zip(axes, wanted):
+            for m in methods:
+                sel = checkpoints[checkpoints["method"] == m]
+                x, y = numeric(sel, "fit_elapsed_s"), numeric(sel, metric.column) * metric.scale
+                for _, idx in sel.groupby(["shape", "seed"]).groups.items():
+                    order = sel.loc[idx, "fraction"].sort_values().index
+                    ax.plot(x[order], y[order], color=colors[m], lw=0.6, alpha=0.25)
+                mean = pd.DataFrame({"x": x, "y": y, "f": sel["fraction"]}).groupby("f").mean().sort_index()
+                ax.plot(mean["x"], mean["y"], color=colors[m], lw=2, marker="o", ms=4, label=plot_label(m))
+            ax.set_title(metric_header(metric))
+            ax.set_xlabel("fit seconds")
+        handles, names = axes[0].get_legend_handles_labels()
+        if handles:
+            fig.legend(handles, names, loc="upper center", ncol=len(names), frameon=False, bbox_to_anchor=(0.5, 1.08))
+        fig.tight_layout()
+        return _svg(fig)

@@ -213,3 +213,21 @@ def test_grid_model_bytes_round_trip(in_dim, out_dim):
     assert isinstance(back, GridNetwork) and back.config == model.config and loss == 0.25
     x = np.random.default_rng(0).uniform(-1.1, 1.1, (300, in_dim)).astype(np.float32)
     np.testing.assert_array_equal(evaluate(back, x), evaluate(model, x))
+
+
+def test_checkpoints_pause_the_fit_without_changing_it():
+    samples, targets = _toy_data()
+    plain = fit(SphereSDF(), samples, targets, TOY, seed=3, device="cpu")
+    seen = []
+
+    def look(step, seconds, model):
+        assert not model.training  # scored in eval mode
+        seen.append((step, seconds, float(evaluate(model, samples.points[:50]).sum())))
+
+    paused = fit(SphereSDF(), samples, targets, TOY, seed=3, device="cpu", checkpoints=(15, 30), on_checkpoint=look)
+    assert [s for s, _, _ in seen] == [15, 30] and seen[0][1] < seen[1][1] <= paused.seconds
+    np.testing.assert_array_equal(paused.losses, plain.losses)  # the same fit, bit for bit
+    x = samples.points[:100]
+    np.testing.assert_array_equal(evaluate(paused.model, x), evaluate(plain.model, x))
+    with pytest.raises(ValueError, match=r"checkpoints must be steps in \[1, 60\]"):
+        fit(SphereSDF(), samples, targets, TOY, seed=3, device="cpu", checkpoints=(61,), on_checkpoint=look)

@@ -362,3 +362,35 @@ def test_registered_methods_oracle_end_to_end(tmp_path):
     df = read_results(out)
     assert list(df.method) == methods and (df.status == "ok").all(), df[["method", "error"]]
     assert (df.cd < 2 / 31).all()
+
+
+def test_checkpoints_give_one_row_each_with_increasing_step_and_an_anytime_plot(fakes, tmp_path):
+    out = tmp_path / "run"
+    args = ["--methods", "test_sdf", "--mode", "neural", "--budget", "tiny", "--grid", "24", "--eval-points", "5000",
+            "--limit", "1", "--cache-dir", str(tmp_path / "cache"), "--plugin", PLUGIN, "--quiet", "--threads", "1",
+            "--checkpoints", "0.25,0.5,1", "--out", str(out)]
+    assert main(args) == 0
+    ck = pd.read_csv(out / "checkpoints.csv")
+    job = read_results(out).iloc[0]
+    assert list(ck["fraction"]) == [0.25, 0.5, 1.0] and list(ck["step"]) == [50, 100, 200]  # tiny: 200 steps
+    assert ck["fit_elapsed_s"].is_monotonic_increasing and ck["fit_elapsed_s"].iloc[-1] <= job["fit_s"]
+    assert job["checkpoints_s"] > 0  # their scoring is timed apart from the fit
+    assert ck["cd"].iloc[-1] == job["cd"] and ck["n_faces"].iloc[-1] == job["n_faces"]  # the last one is the job
+    assert "Anytime curves" in (out / "report.html").read_text()
+    # the checkpoints do not change the fit: the same job without them gives the same numbers
+    plain = tmp_path / "plain"
+    assert main(args[: args.index("--checkpoints")] + ["--out", str(plain), "--no-cache"]) == 0
+    assert read_results(plain).iloc[0]["cd"] == job["cd"]
+
+
+@pytest.mark.parametrize("value, message", [("0.5,0.25", "increasing fractions"), ("0,1", "in (0, 1]"),
+                                            ("half", "expected comma-separated fractions")])
+def test_bad_checkpoints_are_refused(fakes, tmp_path, capsys, value, message):
+    args = ["--methods", "test_sdf", "--budget", "tiny", "--out", str(tmp_path / "r"), "--plugin", PLUGIN]
+    try:
+        code = main(args + ["--checkpoints", value])
+    except SystemExit as exc:  # argparse's own one-line error
+        code = exc.code
+    assert code == EXIT_REFUSED and message in one_error_line(capsys)
+    assert main(args + ["--mode", "oracle", "--checkpoints", "0.5"]) == EXIT_REFUSED
+    assert "--checkpoints needs --mode neural" in one_error_line(capsys)

@@ -94,6 +94,10 @@ def build_parser() -> argparse.ArgumentParser:
            "process; --cpus-per-job for ray). On a loaded machine 1 thread can be far faster than 2")
     a("--retries", type=int, metavar="R", help="times a job whose worker died is retried (default 1); "
                                                "jobs that raise are recorded failed at once")
+    a("--checkpoints", type=_fractions, metavar="F1,F2,...",
+      help="neural mode: also score the network at these fractions of the fit budget, e.g. 0.25,0.5,1 "
+           "(anytime curves: one row per checkpoint in results.db/checkpoints.csv and a plot of each "
+           "metric against fit seconds in the report); off by default; jobs with checkpoints always fit")
     a("--method-param", dest="method_param", action="append", metavar="METHOD.NAME=VALUE",
       help="override an extractor parameter, e.g. sals.o_threshold=0.2 or sals.normals=no (repeatable); "
            "typed and range-checked against the method's parameters")
@@ -105,6 +109,14 @@ def build_parser() -> argparse.ArgumentParser:
            "to register extra methods or datasets (repeatable)")
     a("--quiet", action="store_const", const=True, help="no progress bar; one line per finished job (CI logs)")
     return p
+
+
+def _fractions(text: str) -> tuple[float, ...]:
+    """'0.25,0.5,1' -> (0.25, 0.5, 1.0) (argparse type: a bad value is one line, exit 2)."""
+    try:
+        return tuple(float(t) for t in text.split(",") if t.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated fractions like 0.25,0.5,1, got '{text}'") from None
 
 
 def parse_method_params(items: Sequence[str] | None, plugins: Sequence[str]) -> dict[str, dict[str, Any]]:

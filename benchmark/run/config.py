@@ -83,6 +83,7 @@ class RunConfig:
     metric_preset: str = _f("default", "identity", "metric protocol")
     eval_points: int | None = _f(None, "identity", "metric samples per mesh (None: the preset's)")
     method_params: Mapping[str, Mapping[str, Any]] = _f({}, "identity", "extractor parameters per method")
+    checkpoints: tuple[float, ...] = _f((), "identity", "fractions of the fit at which the network is scored too")
     methods: tuple[str, ...] = _f((), "scope", "methods (empty: all registered)")
     seeds: tuple[int, ...] = _f((0,), "scope", "seeds")
     executor: str = _f("local", "execution", "local, process or ray")
@@ -134,6 +135,12 @@ class RunConfig:
             raise ConfigError(f"--seed values must lie in [0, 2^63), got {bad[0]}")
         if len(set(self.seeds)) != len(self.seeds) or len(set(self.methods)) != len(self.methods):
             raise ConfigError("--seed and --methods values must not repeat")
+        if self.checkpoints:
+            c = self.checkpoints
+            if self.mode != "neural":
+                raise ConfigError("--checkpoints needs --mode neural (oracle mode fits nothing)")
+            if not all(0 < f <= 1 for f in c) or any(b <= a for a, b in zip(c, c[1:])):
+                raise ConfigError(f"--checkpoints must be increasing fractions of the budget in (0, 1], got {list(c)}")
         if self.limit is not None and self.limit < 1:
             raise ConfigError(f"--limit must be >= 1, got {self.limit}")
         for name in ("workers", "threads"):
@@ -219,6 +226,11 @@ def _coerce(f: dataclasses.Field, value):
             if not all(isinstance(v, str) for v in items):
                 raise TypeError
             return tuple(items)
+        if kind.startswith("tuple[float"):
+            items = [value] if isinstance(value, (int, float)) else list(value)
+            if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in items):
+                raise TypeError
+            return tuple(float(v) for v in items)
         if kind.startswith("tuple[int"):
             items = [value] if isinstance(value, int) else list(value)
             if not all(isinstance(v, int) and not isinstance(v, bool) for v in items):

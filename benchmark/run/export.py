@@ -41,8 +41,10 @@ def table_frame(db, table: str, record: dict[str, Any]) -> pd.DataFrame:
     df = df[lead + rest]
     resolved = record.get("resolved", {})
     by = [("shape", resolved.get("shapes", []))]
-    if table == "jobs":
+    if table in ("jobs", "checkpoints"):
         by += [("method", resolved.get("methods", [])), ("seed", record.get("config", {}).get("seeds", []))]
+    if table == "checkpoints":
+        by.append(("fraction", sorted(set(df["fraction"].dropna()))))
     return _ordered(df, by)
 
 
@@ -77,14 +79,19 @@ def export(run_dir: str | Path, db=None, record: dict[str, Any] | None = None,
     db = open_run_db(run_dir, must_exist=True) if own else db
     try:
         results, floor = table_frame(db, "jobs", record), table_frame(db, "floor", record)
+        checkpoints = table_frame(db, "checkpoints", record)
     finally:
         if own:
             db.close()
     results.to_csv(out_dir / "results.csv", index=False, float_format="%.9g")
     floor.to_csv(out_dir / "floor.csv", index=False, float_format="%.9g")
     written: dict[str, Any] = {"results": out_dir / "results.csv", "floor": out_dir / "floor.csv"}
+    if len(checkpoints):
+        checkpoints.to_csv(out_dir / "checkpoints.csv", index=False, float_format="%.9g")
+        written["checkpoints"] = out_dir / "checkpoints.csv"
     try:
-        written["reports"] = reports.write_reports(results, floor, report_context(record), out_dir, run_dir / "meshes")
+        written["reports"] = reports.write_reports(results, floor, report_context(record), out_dir, run_dir / "meshes",
+                                                   checkpoints=checkpoints if len(checkpoints) else None)
     except Exception as exc:  # noqa: BLE001 -- the results are safe in results.db / results.csv
         print(f"salsbench: writing reports failed: {one_line(exc)}", file=sys.stderr)
         written["reports"] = None

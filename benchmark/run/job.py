@@ -35,7 +35,8 @@ class TaskResult:
 
     status : 'ok' or 'failed'; error : one line; metrics : ``evaluate``'s result (raw units);
     timings : ``<stage>_s`` seconds; cache : cache kinds served; cache_rejected : damaged entries
-    recomputed; info : scalar facts (fit steps, samples/s, query fraction, intersected edges, ...).
+    recomputed; info : scalar facts (fit steps, samples/s, query fraction, intersected edges, ...);
+    checkpoints : one dict per checkpoint of the fit (fraction, step, fit_elapsed_s, metrics, timings).
     """
 
     kind: str
@@ -53,6 +54,7 @@ class TaskResult:
     mesh_ply: bytes | None = None
     cache: list = field(default_factory=list)
     cache_rejected: list = field(default_factory=list)
+    checkpoints: list = field(default_factory=list)
     info: dict = field(default_factory=dict)
     device: str | None = None
     host: str | None = None
@@ -110,11 +112,18 @@ class _Progress:
                 pass
 
 
+def timer_sync(device) -> Callable[[], None]:
+    """What a stage timer calls before reading the clock: wait for queued CUDA work."""
+    from methods.device import synchronize
+
+    return lambda: synchronize(device)
+
+
 def _run(spec, progress: Callable | None, body: Callable) -> TaskResult:
     """Common frame of a task: result, timer, worker set-up, failure capture."""
     from benchmark.run.config import import_plugins
     from benchmark.run.provenance import package_versions
-    from methods.device import describe_device, get_device, synchronize
+    from methods.device import describe_device, get_device
 
     result = TaskResult(kind=spec.kind, key=spec.key, spec=spec, started=now_iso(), host=socket.gethostname())
     report = _Progress(progress)
@@ -130,7 +139,7 @@ def _run(spec, progress: Callable | None, body: Callable) -> TaskResult:
                 torch.set_num_threads(int(spec.threads))
             result.versions = package_versions()
             device = get_device(getattr(spec, "device", None))
-            timer.sync = lambda: synchronize(device)
+            timer.sync = timer_sync(device)
             result.device = describe_device(device)
             with stage("load"):
                 shape = load_dataset(spec.dataset, spec.dataset_options).load(spec.shape)
@@ -184,7 +193,7 @@ def _job_body(spec: JobSpec, shape, device, timer: StageTimer, result: TaskResul
                               "seed": spec.seed, "code": fit_code_digest(method)})
     mesh_key = digest({"shape": result.shape_hash, "method": spec.method, "params": method.params, "mode": spec.mode,
                        "grid": spec.grid, "weights": weights_key, "code": extraction_code_digest(method)})
-    cached = caches.load_mesh(spec.method, mesh_key)
+    cached = None if spec.checkpoints else caches.load_mesh(spec.method, mesh_key)  # checkpoints need the fit
     if cached is not None:
         pred_V, pred_F, timings, info, result.fit_loss = cached
         for key, seconds in timings.items():  # the stage times of the job that computed the mesh
@@ -203,6 +212,10 @@ def _job_body(spec: JobSpec, shape, device, timer: StageTimer, result: TaskResul
         caches.save_mesh(spec.method, mesh_key, pred_V, pred_F, timings, result.info, result.fit_loss)
     result.cache, result.cache_rejected = list(stats.hits), list(stats.rejected)
     _score(metrics.evaluate, spec, shape, pred_V, pred_F, result, report)
+    if spec.checkpoints and spec.checkpoints[-1] == 1.0:  # the last checkpoint is the job's own result
+        result.checkpoints.append({"fraction": 1.0, "step": result.info.get("fit_steps"),
+                                   "fit_elapsed_s": result.info.get("fit_loop_s"), **result.metrics,
+                                   **{k: timer.seconds[k] for k in ("query_s", "extract_s", "metrics_s")}})
 
 
 def _grid_field(spec: JobSpec, method, shape, device, caches, weights_key, result: TaskResult, report: _Progress):
@@ -214,7 +227,7 @@ def _grid_field(spec: JobSpec, method, shape, device, caches, weights_key, resul
         report("querying")
         with stage("query"):
             return method.oracle_grid(fields, spec.grid, caches.fields)
-    cached = caches.load_weights(method, weights_key, device)
+    cached = None if spec.checkpoints else caches.load_weights(method, weights_key, device)
     if cached is not None:
         model, result.fit_loss = cached
     else:
@@ -225,6 +238,7 @@ def _grid_field(spec: JobSpec, method, shape, device, caches, weights_key, resul
 
 
 def _fit(spec, method, shape, fields, device, caches, weights_key, result: TaskResult, report: _Progress):
+    from benchmark import metrics
     from benchmark.sampler import sample_training_data
     from benchmark.seeding import job_streams
     from methods import fitting
@@ -237,12 +251,40 @@ def _fit(spec, method, shape, fields, device, caches, weights_key, result: TaskR
     report("labelling")
     with stage("label"):
         targets = method.training_targets(fields, samples)
+    steps = {max(1, round(f * budget.iterations)): f for f in spec.checkpoints if f < 1.0}
+
+    pauses = []
+
+    def checkpoint(step: int, fit_seconds: float, model) -> None:
+        """Score the network of a checkpoint: query, extract and metrics under their own timer."""
+        t0 = time.perf_counter()
+        report("checkpoint", step=step)
+        with StageTimer(timer_sync(device)).active() as inner:
+            with stage("query"):
+                grid_field, _ = method.neural_grid(model, spec.grid, device)
+            with stage("extract"):
+                extraction = method.extract(grid_field, spec.grid)
+            with stage("metrics"):
+                scores = metrics.evaluate(shape.vertices, shape.faces, extraction.vertices, extraction.faces,
+                                          preset=spec.metric_preset, seed=streams.metrics, n_points=spec.eval_points)
+        scores.pop("seconds", None)
+        result.checkpoints.append({"fraction": steps[step], "step": step, "fit_elapsed_s": fit_seconds, **scores,
+                                   **inner.seconds})
+        pauses.append(time.perf_counter() - t0)
+        report("fitting")
+
     report("fitting")
     with stage("fit"):
         fit = fitting.fit(method, samples, targets, budget, seed=streams.fitting_seed(), device=device,
-                          progress=lambda step, loss: report("fitting", step=step, loss=loss))
+                          progress=lambda step, loss: report("fitting", step=step, loss=loss),
+                          checkpoints=tuple(steps), on_checkpoint=checkpoint)
+    if pauses:  # the fit stage's time without the checkpoints' scoring, which is a stage of its own
+        from benchmark.timing import record
+
+        record("fit", -sum(pauses))
+        record("checkpoints", sum(pauses))
     result.fit_loss = fit.final_loss
-    result.info.update(fit_steps=fit.iterations, fit_samples_per_s=fit.samples_per_s)
+    result.info.update(fit_steps=fit.iterations, fit_samples_per_s=fit.samples_per_s, fit_loop_s=fit.seconds)
     caches.save_weights(method, weights_key, fit, budget)
     return fit.model
 

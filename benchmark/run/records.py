@@ -9,6 +9,8 @@ Tables (``SCHEMA_VERSION`` 2; columns declared in :mod:`benchmark.run.schema`):
 * ``jobs`` -- one row per job, primary key ``config_hash`` (the task key, :mod:`benchmark.run.tasks`);
   a re-run of a failed job replaces its row.
 * ``floor`` -- one row per shape (GT against a resample of itself), primary key ``floor_hash``.
+* ``checkpoints`` -- one row per checkpoint of a job's fit (``--checkpoints``), primary key
+  ``checkpoint_hash`` (job key @ fraction), written with the job's row.
 * ``meta`` -- ``key TEXT PK, value TEXT``: ``schema_version``.
 
 Metric and timing keys not declared in the schema get their own column the first time they
@@ -27,7 +29,7 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 import pandas as pd
 
-from benchmark.run.schema import TABLES, sql_columns
+from benchmark.run.schema import PRIMARY_KEYS, TABLES, sql_columns
 from benchmark.serialize import dumps
 
 SCHEMA_VERSION = 2
@@ -35,6 +37,7 @@ DB_NAME = "results.db"
 
 JOB_COLUMNS: dict[str, str] = sql_columns("jobs")
 FLOOR_COLUMNS: dict[str, str] = sql_columns("floor")
+CHECKPOINT_COLUMNS: dict[str, str] = sql_columns("checkpoints")
 #: Declared columns that hold measured values (metrics, mesh counts, timings).
 MEASURED = {c.name for table in TABLES.values() for c in table if c.role in ("metric", "validity", "timing")}
 
@@ -87,10 +90,9 @@ class ResultsDB:
 
     # -- schema -----------------------------------------------------------------------------
     def _create(self) -> None:
-        cols = ", ".join(f'"{k}" {t}' for k, t in JOB_COLUMNS.items())
-        self.conn.execute(f"CREATE TABLE IF NOT EXISTS jobs ({cols})")
-        cols = ", ".join(f'"{k}" {t}' for k, t in FLOOR_COLUMNS.items())
-        self.conn.execute(f"CREATE TABLE IF NOT EXISTS floor ({cols})")
+        for table in TABLES:
+            cols = ", ".join(f'"{k}" {t}' for k, t in sql_columns(table).items())
+            self.conn.execute(f'CREATE TABLE IF NOT EXISTS "{table}" ({cols})')
         self.conn.execute("CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT)")
         stored = self.get_meta("schema_version")
         if stored is None:
@@ -167,10 +169,31 @@ class ResultsDB:
             raise KeyError("a floor row needs its floor_hash")
         self._upsert("floor", self.flatten(fixed, [metrics or {}, timings or {}], FLOOR_COLUMNS))
 
+    def write_checkpoints(self, config_hash: str, fixed: Mapping[str, Any], rows: list[Mapping[str, Any]]) -> None:
+        """Replace the checkpoint rows of one job (``rows``: fraction, step, fit_elapsed_s, metrics,
+        timings each) in one transaction; ``fixed`` holds the job's shape, method, seed."""
+        flat = [self.flatten({"checkpoint_hash": f"{config_hash}@{r['fraction']:g}", "config_hash": config_hash,
+                              "fraction": r["fraction"], "step": r["step"], **fixed},
+                             [{k: v for k, v in r.items() if k not in ("fraction", "step")}], CHECKPOINT_COLUMNS)
+                for r in rows]
+        for row in flat:
+            self._ensure_columns("checkpoints", row)
+        self.conn.execute("BEGIN IMMEDIATE")
+        try:
+            self.conn.execute('DELETE FROM "checkpoints" WHERE config_hash = ?', (config_hash,))
+            for row in flat:
+                names = ", ".join(f'"{k}"' for k in row)
+                marks = ", ".join("?" for _ in row)
+                self.conn.execute(f'INSERT INTO "checkpoints" ({names}) VALUES ({marks})', tuple(row.values()))
+            self.conn.execute("COMMIT")
+        except BaseException:
+            self.conn.execute("ROLLBACK")
+            raise
+
     # -- reading ----------------------------------------------------------------------------
     def ok_hashes(self, table: str = "jobs") -> set[str]:
         """Hashes of rows with status 'ok' (jobs or floor rows that need not run again)."""
-        key = "config_hash" if table == "jobs" else "floor_hash"
+        key = PRIMARY_KEYS[table]
         return {r[0] for r in self.conn.execute(f'SELECT "{key}" FROM "{table}" WHERE status = ?', ("ok",))}
 
     def attempts(self) -> dict[str, int]:

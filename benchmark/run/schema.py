@@ -104,15 +104,29 @@ FLOOR_COLUMNS: tuple[Column, ...] = (
     _c("extra", "TEXT", "bookkeeping"),
 )
 
-TABLES = {"jobs": JOB_COLUMNS, "floor": FLOOR_COLUMNS}
-PRIMARY_KEYS = {"jobs": "config_hash", "floor": "floor_hash"}
+#: One row per checkpoint of a job's fit (``--checkpoints``): the anytime curves.
+CHECKPOINT_COLUMNS: tuple[Column, ...] = (
+    _c("checkpoint_hash", "TEXT PRIMARY KEY", "key"),
+    _c("shape", "TEXT", "key", csv=True),
+    _c("method", "TEXT", "key", csv=True),
+    _c("seed", "INTEGER", "key", csv=True),
+    _c("fraction", "REAL", "key", csv=True),
+    _c("step", "INTEGER", "key", csv=True),
+    _c("fit_elapsed_s", "REAL", "timing", csv=True),
+    *(c for c in JOB_COLUMNS if c.role in ("metric", "validity")),
+    _c("config_hash", "TEXT", "bookkeeping"),
+    _c("extra", "TEXT", "bookkeeping"),
+)
+
+TABLES = {"jobs": JOB_COLUMNS, "floor": FLOOR_COLUMNS, "checkpoints": CHECKPOINT_COLUMNS}
+PRIMARY_KEYS = {"jobs": "config_hash", "floor": "floor_hash", "checkpoints": "checkpoint_hash"}
 
 #: Columns of the traceback/JSON kind that results.csv leaves out (they live in results.db).
 CSV_EXCLUDED = ("traceback", "versions", "info", "extra")
 
 
 def sql_columns(table: str) -> dict[str, str]:
-    """{column: SQLite type} of the fixed columns of ``table`` ('jobs' or 'floor')."""
+    """{column: SQLite type} of the fixed columns of ``table`` ('jobs', 'floor' or 'checkpoints')."""
     return {c.name: c.sql for c in TABLES[table]}
 
 

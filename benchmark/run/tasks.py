@@ -81,7 +81,8 @@ class JobSpec(TaskSpec):
     """One (shape, method, seed) job.
 
     method, params : registry name and full, typed extractor parameters. mode : 'neural' or 'oracle'.
-    budget : fitting budget name (None in oracle mode). grid : N. cache_dir : cache root (None: off).
+    budget : fitting budget name (None in oracle mode). grid : N. checkpoints : fractions of the fit at
+    which the network is scored too (anytime curves). cache_dir : cache root (None: off).
     device : torch device (None: automatic).
     """
 
@@ -90,6 +91,7 @@ class JobSpec(TaskSpec):
     mode: str = "neural"
     budget: str | None = None
     grid: int = 128
+    checkpoints: tuple[float, ...] = ()
     cache_dir: str | None = None
     device: str | None = None
 
@@ -97,7 +99,7 @@ class JobSpec(TaskSpec):
 
     def identity(self) -> dict:
         return {**super().identity(), "method": self.method, "params": self.params, "mode": self.mode,
-                "budget": self.budget, "grid": self.grid}
+                "budget": self.budget, "grid": self.grid, "checkpoints": list(self.checkpoints)}
 
     @property
     def uses_fitting(self) -> bool:
@@ -117,7 +119,7 @@ def build_tasks(plan) -> tuple[list[FloorSpec], list[JobSpec]]:
     floors = [FloorSpec(shape=s, seed=c.seeds[0], **common) for s in plan.shapes]
     cache_dir = None if c.no_cache else str(cache_root_of(c))
     jobs = [JobSpec(shape=s, seed=seed, method=m, params=plan.method_params[m], mode=c.mode, budget=c.budget,
-                    grid=c.grid, cache_dir=cache_dir, **common)
+                    grid=c.grid, checkpoints=c.checkpoints, cache_dir=cache_dir, **common)
             for s in plan.shapes for m in plan.methods for seed in c.seeds]
     return floors, jobs
 
