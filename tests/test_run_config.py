@@ -28,7 +28,7 @@ def test_config_is_frozen_and_typed():
 
 def test_oracle_mode_has_no_budget():
     assert RunConfig(mode="oracle", budget="paper").budget is None
-    assert RunConfig(mode="neural", budget=None).budget == "quick"
+    assert RunConfig(mode="neural", budget=None).budget == "cpu" == RunConfig().budget
 
 
 def test_grid_bound_comes_from_the_machine_memory():
@@ -51,5 +51,5 @@ def test_resolve_types_method_params_and_lists_shapes():
     assert len(plan.shapes) == 2 and plan.budget is None and plan.eval_points == 1_000_000
     with pytest.raises(ConfigError, match=r"sals.o_threshold='2': expected float in \(0, 1\)"):
         resolve(RunConfig(mode="oracle", methods=("sals",), method_params={"sals": {"o_threshold": "2"}}))
-    with pytest.raises(ConfigError, match="unknown budget 'huge'; known budgets: paper, quick, tiny"):
+    with pytest.raises(ConfigError, match="unknown budget 'huge'; known budgets: paper, quick, tiny, cpu, tiny-grid"):
         resolve(RunConfig(budget="huge"))

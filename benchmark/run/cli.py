@@ -65,8 +65,10 @@ def build_parser() -> argparse.ArgumentParser:
     a("--limit", type=int, metavar="N", help="use only the first N shapes of the dataset")
     a("--mode", choices=MODES, help="neural (default): fit a network per shape and method, extract from it; "
                                     "oracle: extract from the exact field (no fitting; isolates extraction error)")
-    a("--budget", metavar="NAME", help="fitting budget, the same for every method: tiny, quick (default; sized so "
-                                       "the default run ends in minutes on 2 CPU cores), paper (100k steps)")
+    a("--budget", metavar="NAME", help="fitting budget, the same for every method: cpu (default; feature-grid "
+                                       "backbone, a fit in well under a minute on 2 CPU cores), quick (a small MLP, "
+                                       "the CPU reference without the grid), paper (the paper's 9 x 512 MLP, 100k "
+                                       "steps: a GPU budget), tiny and tiny-grid (tests and CI)")
     a("--grid", type=int, metavar="N", help=f"grid points per axis on [-1,1] (default 128; >= {MIN_GRID}, bounded "
                                             "by this machine's memory); spacing 2/(N-1) canonical units")
     a("--eval-points", dest="eval_points", type=int, metavar="N",

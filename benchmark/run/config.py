@@ -78,7 +78,7 @@ class RunConfig:
     list_file: str | None = _f(None, "identity", "text file of shape names")
     limit: int | None = _f(None, "identity", "first N shapes of the dataset")
     mode: str = _f("neural", "identity", "neural (fit) or oracle (exact field)")
-    budget: str | None = _f("quick", "identity", "fitting budget (neural mode)")
+    budget: str | None = _f("cpu", "identity", "fitting budget (neural mode)")
     grid: int = _f(128, "identity", "grid points per axis on [-1, 1]")
     metric_preset: str = _f("default", "identity", "metric protocol")
     eval_points: int | None = _f(None, "identity", "metric samples per mesh (None: the preset's)")
@@ -104,7 +104,7 @@ class RunConfig:
         if self.mode == "oracle" and self.budget is not None:
             object.__setattr__(self, "budget", None)  # oracle mode fits nothing: no budget in the protocol
         elif self.mode == "neural" and self.budget is None:
-            object.__setattr__(self, "budget", "quick")
+            object.__setattr__(self, "budget", "cpu")
         self._check()
 
     def _check(self) -> None:
