@@ -170,8 +170,8 @@ def _score(score: Callable, spec, shape, pred_V, pred_F, result: TaskResult, rep
     result.mesh_ply = mesh_to_ply(pred_V, pred_F)
 
 
-#: Timing keys a cached mesh replays (the stages that produced it).
-_REPLAYED = ("load_s", "metrics_s")
+#: Timing keys a cached mesh does not store (every job loads and scores for itself).
+_NOT_CACHED = ("load_s", "metrics_s")
 
 
 def _job_body(spec: JobSpec, shape, device, timer: StageTimer, result: TaskResult, report: _Progress) -> None:
@@ -208,7 +208,7 @@ def _job_body(spec: JobSpec, shape, device, timer: StageTimer, result: TaskResul
         result.info.update({k: v for k, v in extraction.info.items() if isinstance(v, (int, float, str, bool))})
         pred_V = np.asarray(extraction.vertices, dtype=np.float64)
         pred_F = np.asarray(extraction.faces, dtype=np.int64)
-        timings = {k: v for k, v in timer.seconds.items() if k not in _REPLAYED}
+        timings = {k: v for k, v in timer.seconds.items() if k not in _NOT_CACHED}
         caches.save_mesh(spec.method, mesh_key, pred_V, pred_F, timings, result.info, result.fit_loss)
     result.cache, result.cache_rejected = list(stats.hits), list(stats.rejected)
     _score(metrics.evaluate, spec, shape, pred_V, pred_F, result, report)
