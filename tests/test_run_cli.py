@@ -394,3 +394,19 @@ def test_bad_checkpoints_are_refused(fakes, tmp_path, capsys, value, message):
     assert code == EXIT_REFUSED and message in one_error_line(capsys)
     assert main(args + ["--mode", "oracle", "--checkpoints", "0.5"]) == EXIT_REFUSED
     assert "--checkpoints needs --mode neural" in one_error_line(capsys)
+
+
+def test_run_directories_of_an_older_format_are_refused_with_one_line(fakes, tmp_path, capsys):
+    old = tmp_path / "old"
+    old.mkdir()
+    (old / "config.json").write_text(json.dumps({"options": {"grid": 64}, "environment": {}, "grid": 64}))
+    assert main(oracle_args(old, tmp_path / "cache")) == EXIT_REFUSED
+    assert "written by an older salsbench" in one_error_line(capsys)
+    older = tmp_path / "older"
+    older.mkdir()
+    with sqlite3.connect(older / "results.db") as con:
+        con.execute("CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT)")
+        con.execute("INSERT INTO meta VALUES ('schema_version', '1')")
+    assert main(oracle_args(older, tmp_path / "cache")) == EXIT_REFUSED
+    assert "results database schema 1, this version reads 2" in one_error_line(capsys)
+    assert not (older / "config.json").exists()  # refused before anything was written

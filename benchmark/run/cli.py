@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from benchmark.run.config import MIN_EVAL_POINTS, MIN_GRID, MODES, ConfigError, RunConfig, import_plugins, resolve
+from benchmark.run.records import SchemaMismatch
 from benchmark.run.rundir import RunDirectory, check_writable_dir, saved_config
 
 EXIT_OK, EXIT_REFUSED, EXIT_FAILED_TASKS = 0, 2, 3
@@ -223,7 +224,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                       "environment": environment_record(),
                       "command": " ".join([Path(sys.argv[0]).name] + list(argv))}
             outcome = run(plan, run_dir, record)
-    except ConfigError as exc:
+    except (ConfigError, SchemaMismatch) as exc:
         print(f"run_benchmark.py: error: {exc}", file=sys.stderr)
         return EXIT_REFUSED
     return EXIT_OK if outcome.failed == 0 else EXIT_FAILED_TASKS

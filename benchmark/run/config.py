@@ -202,6 +202,9 @@ class RunConfig:
             raise ConfigError(f"--config {path}: not valid {path.suffix.lstrip('.').upper() or 'JSON'} ({exc})") from None
         if not isinstance(data, dict):
             raise ConfigError(f"--config {path}: expected a table of settings")
+        if "config" not in data and "environment" in data and "options" in data:
+            raise ConfigError(f"{path}: written by an older salsbench (before typed run configurations); "
+                              f"start a new --out")
         data = data.get("config", data.get("run", data))
         return cls.from_mapping(data, where=f"--config {path}")
 

@@ -69,10 +69,10 @@ def run(plan: Plan, run_dir: RunDirectory, record: dict, executor=None) -> RunOu
     from benchmark.run.export import export
 
     config = plan.config
+    db = ResultsDB(run_dir.path / "results.db")  # first: a database of another schema is refused untouched
     record = {**record, "started": now_iso()}
     run_dir.write_config(record)
     floors, jobs = build_tasks(plan)
-    db = ResultsDB(run_dir.path / "results.db")
     done_jobs, done_floors = db.ok_hashes("jobs"), db.ok_hashes("floor")
     attempts = db.attempts()
     todo = [f for f in floors if f.key not in done_floors] + [j for j in jobs if j.key not in done_jobs]

@@ -72,6 +72,10 @@ def scalar(value: Any) -> tuple[bool, Any]:
     return False, None
 
 
+class SchemaMismatch(ValueError):
+    """A results database written by another schema version (one line)."""
+
+
 class ResultsDB:
     """The results database of one run directory (created on first use).
 
@@ -98,7 +102,8 @@ class ResultsDB:
         if stored is None:
             self.set_meta("schema_version", str(SCHEMA_VERSION))
         elif int(stored) != SCHEMA_VERSION:
-            raise RuntimeError(f"{self.path}: results database schema {stored}, this version reads {SCHEMA_VERSION}")
+            raise SchemaMismatch(f"{self.path}: results database schema {stored}, this version reads {SCHEMA_VERSION}; "
+                                 f"start a new --out (or use the salsbench version that wrote it)")
 
     def columns(self, table: str) -> list[str]:
         return [r[1] for r in self.conn.execute(f'PRAGMA table_info("{table}")')]
