@@ -317,6 +317,8 @@ def test_config_files_with_unknown_settings_are_refused(fakes, tmp_path, capsys)
     cfg.write_text('mode = "oracle"\ngird = 32\n')
     assert main(["--config", str(cfg), "--out", str(tmp_path / "x")]) == EXIT_REFUSED
     assert "unknown setting(s) gird; known: task, dataset" in one_error_line(capsys)
+    assert main(["--config", str(cfg), "--resume", "--out", str(tmp_path / "x")]) == EXIT_REFUSED
+    assert "give one" in one_error_line(capsys)
     cfg.write_text('mode = "oracle"\ngrid = "32"\n')
     assert main(["--config", str(cfg), "--out", str(tmp_path / "x")]) == EXIT_REFUSED
     assert "setting 'grid' must be int, got '32'" in one_error_line(capsys)

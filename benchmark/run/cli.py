@@ -184,6 +184,8 @@ def configure(args: argparse.Namespace, run_dir: Path) -> RunConfig:
     Called with the directory locked, so no other driver changes config.json meanwhile.
     """
     saved = saved_config(run_dir)
+    if args.resume and args.config:
+        raise ConfigError("--resume continues a run with its saved config.json; --config starts a new one: give one")
     if args.resume:
         if saved is None:
             raise ConfigError(f"--resume: {run_dir / 'config.json'} does not exist (nothing to resume)")
