@@ -5,8 +5,8 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from methods.network import (ACTIVATIONS, GRID_INIT_SCALE, FeatureGrid, GridNetwork, fast_softplus, make_network,
-                             trilinear)
+from methods.network import (ACTIVATIONS, GRID_INIT_SCALE, SEGMENT_SCALE, FeatureGrid, GridNetwork, fast_softplus,
+                             make_network, trilinear)
 
 BETA = 100.0
 
@@ -139,7 +139,7 @@ def test_grid_network_shapes_parameters_and_config():
     grid_values = (16 ** 3 + 32 ** 3 + 64 ** 3) * 4
     head = lambda n_in, n_out: (n_in * 64 + 64) + (64 * 64 + 64) + (64 * n_out + n_out)  # noqa: E731
     assert sum(p.numel() for p in points.parameters()) == grid_values + head(3 * 4 + 3, 1)
-    assert sum(p.numel() for p in segments.parameters()) == grid_values + head(2 * (3 * 4 + 3), 2)
+    assert sum(p.numel() for p in segments.parameters()) == grid_values + head(2 * (3 * 4 + 3) + 3, 2)  # + offset
     assert all(level.abs().max() <= GRID_INIT_SCALE for level in points.encoder.levels)
     assert segments.config == dict(backbone="grid", in_dim=6, out_dim=2, depth=3, width=64, beta=100.0,
                                    activation="softplus", grid_resolutions=(16, 32, 64), grid_channels=4)
@@ -150,8 +150,9 @@ def test_grid_network_shapes_parameters_and_config():
 
 
 def test_segments_share_one_encoder_and_swapping_u_v_swaps_the_code_blocks():
-    """One FeatureGrid serves u and v: the head reads [enc(u), u, enc(v), v], so (v, u) gives the same two
-    blocks swapped; the network's parameters are exactly that grid's and the head's."""
+    """One FeatureGrid serves u and v: the head reads [enc(u), u, enc(v), v, (v - u) / SEGMENT_SCALE], so
+    (v, u) gives the same two blocks swapped and the offset negated; the network's parameters are
+    exactly that grid's and the head's."""
     torch.manual_seed(0)
     net = make_network(6, 2, **GRID)
     assert [type(m) for m in net.modules()].count(FeatureGrid) == 1
@@ -167,10 +168,12 @@ def test_segments_share_one_encoder_and_swapping_u_v_swaps_the_code_blocks():
     net(torch.cat([u, v], dim=1))
     net(torch.cat([v, u], dim=1))
     n = net.encoder.out_dim + 3
-    assert codes[0].shape == (10, 2 * n)
+    assert codes[0].shape == (10, 2 * n + 3)
     assert torch.equal(codes[0][:, :n], torch.cat([net.encoder(u), u], dim=1))
-    assert torch.equal(codes[0][:, n:], torch.cat([net.encoder(v), v], dim=1))
-    assert torch.equal(codes[1], torch.cat([codes[0][:, n:], codes[0][:, :n]], dim=1))
+    assert torch.equal(codes[0][:, n:2 * n], torch.cat([net.encoder(v), v], dim=1))
+    assert torch.equal(codes[0][:, 2 * n:], (v - u) / SEGMENT_SCALE)
+    assert torch.equal(codes[1][:, :2 * n], torch.cat([codes[0][:, n:2 * n], codes[0][:, :n]], dim=1))
+    assert torch.equal(codes[1][:, 2 * n:], (u - v) / SEGMENT_SCALE)
 
 
 def test_backbone_errors():
