@@ -148,13 +148,19 @@ class ResultsDB:
             row["extra"] = dumps(extra)
         return row
 
-    def _upsert(self, table: str, row: Mapping[str, Any]) -> None:
-        self._ensure_columns(table, row)
-        names = ", ".join(f'"{k}"' for k in row)
-        marks = ", ".join("?" for _ in row)
+    def _commit(self, table: str, rows: list[Mapping[str, Any]], delete: tuple[str, str] | None = None) -> None:
+        """In one transaction: delete the rows whose ``delete[0]`` column equals ``delete[1]`` (if
+        given), then insert-or-replace ``rows``; new measured columns are added first."""
+        for row in rows:
+            self._ensure_columns(table, row)
         self.conn.execute("BEGIN IMMEDIATE")
         try:
-            self.conn.execute(f'INSERT OR REPLACE INTO "{table}" ({names}) VALUES ({marks})', tuple(row.values()))
+            if delete is not None:
+                self.conn.execute(f'DELETE FROM "{table}" WHERE "{delete[0]}" = ?', (delete[1],))
+            for row in rows:
+                names = ", ".join(f'"{k}"' for k in row)
+                marks = ", ".join("?" for _ in row)
+                self.conn.execute(f'INSERT OR REPLACE INTO "{table}" ({names}) VALUES ({marks})', tuple(row.values()))
             self.conn.execute("COMMIT")
         except BaseException:
             self.conn.execute("ROLLBACK")
@@ -165,14 +171,14 @@ class ResultsDB:
         """Insert (or replace) one job row and commit. ``fixed`` holds :data:`JOB_COLUMNS` fields."""
         if "config_hash" not in fixed:
             raise KeyError("a job row needs its config_hash")
-        self._upsert("jobs", self.flatten(fixed, [metrics or {}, timings or {}], JOB_COLUMNS))
+        self._commit("jobs", [self.flatten(fixed, [metrics or {}, timings or {}], JOB_COLUMNS)])
 
     def write_floor(self, fixed: Mapping[str, Any], metrics: Mapping[str, Any] | None = None,
                     timings: Mapping[str, Any] | None = None) -> None:
         """Insert (or replace) one floor row and commit. ``fixed`` holds :data:`FLOOR_COLUMNS` fields."""
         if "floor_hash" not in fixed:
             raise KeyError("a floor row needs its floor_hash")
-        self._upsert("floor", self.flatten(fixed, [metrics or {}, timings or {}], FLOOR_COLUMNS))
+        self._commit("floor", [self.flatten(fixed, [metrics or {}, timings or {}], FLOOR_COLUMNS)])
 
     def write_checkpoints(self, config_hash: str, fixed: Mapping[str, Any], rows: list[Mapping[str, Any]]) -> None:
         """Replace the checkpoint rows of one job (``rows``: fraction, step, fit_elapsed_s, metrics,
@@ -181,19 +187,7 @@ class ResultsDB:
                               "fraction": r["fraction"], "step": r["step"], **fixed},
                              [{k: v for k, v in r.items() if k not in ("fraction", "step")}], CHECKPOINT_COLUMNS)
                 for r in rows]
-        for row in flat:
-            self._ensure_columns("checkpoints", row)
-        self.conn.execute("BEGIN IMMEDIATE")
-        try:
-            self.conn.execute('DELETE FROM "checkpoints" WHERE config_hash = ?', (config_hash,))
-            for row in flat:
-                names = ", ".join(f'"{k}"' for k in row)
-                marks = ", ".join("?" for _ in row)
-                self.conn.execute(f'INSERT INTO "checkpoints" ({names}) VALUES ({marks})', tuple(row.values()))
-            self.conn.execute("COMMIT")
-        except BaseException:
-            self.conn.execute("ROLLBACK")
-            raise
+        self._commit("checkpoints", flat, delete=("config_hash", config_hash))
 
     # -- reading ----------------------------------------------------------------------------
     def ok_hashes(self, table: str = "jobs") -> set[str]:
