@@ -3,7 +3,7 @@
 Public API
 ----------
 write_reports(results, floor, context, out_dir, meshes_dir=None) -> {name: Path}
-    summary.md, summary.tex, timing.csv, timing.md and report.html in ``out_dir``.
+    summary.md, summary.tex, statistics.csv, timing.csv, timing.md and report.html in ``out_dir``.
 compare_runs(runs, out_dir) -> {name: Path}
     The same files for several runs side by side; ``runs`` is a list of dicts with keys name,
     results, floor, context, meshes_dir.
@@ -15,8 +15,9 @@ A bad frame or context raises ValueError with a one-line message.
 
 Modules: ``table`` (table model, Markdown/LaTeX writers), ``frames`` (input checks), ``protocol``
 (context, preset text), ``style`` (method order and colours), ``statistics`` (per-method
-statistics and their table), ``summary`` (the run's tables, summary.md/.tex), ``timing``,
-``compare`` (several runs), ``plots``, ``render`` (thumbnails), ``html`` (report.html).
+statistics and their table), ``significance`` (bootstrap intervals, paired tests, the tie rule),
+``summary`` (the run's tables, summary.md/.tex), ``timing``, ``compare`` (several runs), ``plots``,
+``render`` (thumbnails), ``html`` (report.html).
 """
 
 from __future__ import annotations
@@ -56,7 +57,8 @@ def write_reports(results: pd.DataFrame, floor: pd.DataFrame | None, context: di
 
 
 def compare_runs(runs: list[dict], out_dir: Path) -> dict[str, Path]:
-    """Write summary.md/.tex, timing.csv/.md and report.html comparing several runs in ``out_dir``."""
+    """Write summary.md/.tex, statistics.csv, timing.csv/.md and report.html comparing several runs in
+    ``out_dir``."""
     comparison = build_comparison(runs)
     paths = write_comparison(comparison, Path(out_dir))
     paths["report.html"] = write_comparison_html(Path(out_dir) / "report.html", comparison)

@@ -1,7 +1,7 @@
 """report.html: one self-contained page (inline CSS, images as base64 data URIs, no script, no network).
 
-Sections: summary (best per column highlighted, the mean table with its empty and ECD NaN counts and
-what each mean is over), a gallery (per shape: GT and every method rendered headless with
+Sections: summary (the best mean per metric with the methods tied with it, the mean table with its
+intervals, counts and what each mean is over), a gallery (per shape: GT and every method rendered headless with
 :mod:`reports.render`, plus each method coloured by its distance to the GT surface, with the colour
 scale), per-shape plots (:mod:`reports.plots`) and tables, validity, timing, failed jobs with their
 error text, and the protocol with the run context. Every text from the run is escaped with
@@ -22,6 +22,7 @@ from reports import plots, render
 from reports.frames import numeric, ok_jobs, one_line
 from reports.protocol import device_text, protocol_items, report_title
 from reports.style import method_colors
+from reports.statistics import tests_against_best
 from reports.summary import Summary
 from reports.table import Table, fmt, metric_header
 from reports.timing import timing_caption, timing_table
@@ -45,7 +46,8 @@ def data_uri(payload: bytes, mime: str) -> str:
 
 def table_html(table: Table, css_class: str = "") -> str:
     """A :class:`reports.table.Table` as an HTML table: bold method cells highlighted as best,
-    bold cells of other rows (totals) strong, 'failed' cells red, hover text as ``title``."""
+    bold cells of other rows (totals) strong, 'failed' cells red, hover text as ``title``, a cell's
+    detail (an interval) muted after its text."""
     head = "".join(f'<th class="{a}">{esc(h)}</th>' for h, a in zip(table.headers, table.align))
     rows = []
     for cells, kind in zip(table.rows, table.row_kinds):
@@ -57,6 +59,7 @@ def table_html(table: Table, css_class: str = "") -> str:
             text = esc(cell.text)
             if kind == "step" and align == "l":
                 text = "&nbsp;&nbsp;↳ " + esc(cell.text.strip().split(": ", 1)[-1])
+            text += f' <span class="muted">{esc(cell.detail)}</span>' if cell.detail else ""
             tds.append(f'<td class="{" ".join(cls)}"{title}>{text}</td>')
         rows.append(f'<tr class="{esc(kind)}">{"".join(tds)}</tr>')
     return (f'<div class="tablewrap"><table class="{css_class}"><thead><tr>{head}</tr></thead>'
@@ -206,17 +209,20 @@ def colorbar_html(vmax: float, grid: int) -> str:
 
 
 def _highlights(summary: Summary, colors: dict) -> str:
-    """A box per metric naming the best method's mean."""
+    """A box per metric naming the best method's mean and the methods tied with it (the mean table's bold)."""
     mean = summary.stats.values["mean"].reindex(summary.methods)
+    tied = tests_against_best(summary.stats, summary.metrics, "mean").bold.reindex(summary.methods)
     out = []
     for metric in summary.metrics:
         values = mean[metric.column].dropna()
         if not len(values):
             continue
         best = values.idxmin() if metric.lower_is_better else values.idxmax()
+        ties = [m for m in values.index if m != best and tied.at[m, metric.column]]
+        tie = f'<div class="muted">tied with {esc(", ".join(ties))}</div>' if ties else ""
         out.append(f'<div class="hl"><div class="k">best {esc(metric_header(metric))}</div><div class="v">'
                    f'<i class="dot" style="background:{colors[best]}"></i>{esc(best)} '
-                   f'<span class="muted">{fmt(values[best])}</span></div></div>')
+                   f'<span class="muted">{fmt(values[best])}</span></div>{tie}</div>')
     return f'<div class="highlights">{"".join(out)}</div>' if out else ""
 
 

@@ -1,9 +1,13 @@
 """The paper tables of one run, computed once (:func:`build_summary`) and written as summary.md / summary.tex.
 
 Tables: mean, median and std per method (:func:`reports.statistics.statistic_table`; the caption
-says what each mean is over), mesh validity of the predictions (the schema's validity columns), and
-per shape the mean over seeds of CD and ECD. Failed jobs are listed with their error text. Every
-cell carrying user text (shape names, method names, errors) is escaped by each writer.
+says what each mean is over, what its interval is and what bold means: the best and the methods
+within the noise of it), mesh validity of the predictions (the schema's validity columns), and
+per shape the mean over seeds of CD and ECD (bold: the best of a row at the printed precision; a
+single shape has no paired test). statistics.csv holds the mean table's numbers with every
+interval and p-value (:func:`reports.statistics.statistics_frame`). Failed jobs are listed with
+their error text. Every cell carrying user text (shape names, method names, errors) is escaped by
+each writer.
 """
 
 from __future__ import annotations
@@ -17,7 +21,7 @@ import pandas as pd
 from benchmark.run.schema import columns as schema_columns
 from reports.frames import as_bool, check_floor, check_results, numeric, ok_jobs, one_line
 from reports.protocol import check_context, headline_metrics, protocol_caption, report_title
-from reports.statistics import AGGREGATION, Statistics, method_statistics, statistic_table
+from reports.statistics import AGGREGATION, Statistics, method_statistics, statistic_table, statistics_frame
 from reports.style import method_order
 from reports.table import (
     DASH,
@@ -35,7 +39,7 @@ from reports.table import (
 #: Metrics that get a per-shape table (the distance metrics).
 PER_SHAPE = ("cd", "ecd")
 FLOOR_NOTE = ("Floor: GT against an independent resample of itself (the protocol's sampling noise), a reference "
-              "row. Best method per column in bold.")
+              "row, never bold.")
 
 
 @dataclass
@@ -186,12 +190,18 @@ def summary_latex(summary: Summary, title: str) -> str:
     return "\n".join(head) + "\n".join(table_latex(t) for t in summary.tables.values())
 
 
+def write_statistics(frame: pd.DataFrame, path: Path) -> None:
+    """statistics.csv (:func:`reports.statistics.statistics_frame`)."""
+    frame.to_csv(path, index=False, float_format="%.6g")
+
+
 def write_summary(summary: Summary, context: dict, out_dir: Path) -> dict[str, Path]:
-    """summary.md and summary.tex in ``out_dir``; returns {name: path}."""
+    """summary.md, summary.tex and statistics.csv in ``out_dir``; returns {name: path}."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     title = report_title(context)
-    paths = {"summary.md": out_dir / "summary.md", "summary.tex": out_dir / "summary.tex"}
+    paths = {name: out_dir / name for name in ("summary.md", "summary.tex", "statistics.csv")}
     paths["summary.md"].write_text(summary_markdown(summary, title), encoding="utf-8")
     paths["summary.tex"].write_text(summary_latex(summary, title), encoding="utf-8")
+    write_statistics(statistics_frame(summary.stats, summary.metrics), paths["statistics.csv"])
     return paths

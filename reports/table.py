@@ -6,14 +6,17 @@ escaped) plus bold flags and a kind per row, then written by each writer, which 
 * Markdown: pandas ``DataFrame.to_markdown`` (tabulate) on cells escaped by :func:`md_escape`.
 * LaTeX: :func:`table_latex`, a booktabs float. It stays hand-written rather than pandas'
   ``Styler.to_latex`` because the tables need what Styler does not give: a ``\\midrule`` before
-  (and after) the floor row only, bold per cell (the best of a column at the printed precision) and
+  (and after) the floor row only, bold per cell (the best of a column and its ties) and
   an italic floor row in the same table, a caption that is the title plus the protocol, and the
   unicode of headers and names (×, ↓, ↑, –, ³, ...) mapped to LaTeX (:func:`tex_escape`), where
   Styler's ``escape='latex'`` only escapes the specials.
 * HTML: ``reports.html.table_html`` (stdlib :func:`html.escape`).
 
 Numbers are printed with :func:`fmt` (fixed point, NaN as an en dash); :func:`best_flags` marks the
-best of a column compared at the printed precision, so ties are all bold.
+best of a column compared at the printed precision, so ties are all bold (the statistics tables add
+the ties within the noise, :mod:`reports.significance`). A cell's ``detail`` (a confidence interval)
+follows its text, never bold: ``**4.500** [4.100, 4.930]`` in Markdown, ``\\,{\\scriptsize ...}`` in
+LaTeX, a muted span in HTML.
 """
 
 from __future__ import annotations
@@ -31,11 +34,13 @@ DIGITS = 3
 
 @dataclass
 class Cell:
-    """One table cell: plain text, bold flag, optional hover text (HTML, e.g. an error message)."""
+    """One table cell: plain text, bold flag, optional hover text (HTML, e.g. an error message) and
+    detail (plain text after the value, never bold, e.g. a confidence interval)."""
 
     text: str
     bold: bool = False
     title: str | None = None
+    detail: str = ""
 
 
 @dataclass
@@ -129,10 +134,14 @@ def md_escape(text) -> str:
     return _MD_SPECIALS.sub(r"\\\1", _NEWLINES.sub(" ", str(text)))
 
 
+def _md_cell(cell: Cell) -> str:
+    text = f"**{md_escape(cell.text)}**" if cell.bold and cell.text != DASH else md_escape(cell.text)
+    return f"{text} {md_escape(cell.detail)}" if cell.detail else text
+
+
 def table_markdown(table: Table) -> str:
-    """GitHub Markdown via pandas/tabulate; every cell escaped, bold cells as **x**."""
-    body = [[f"**{md_escape(c.text)}**" if c.bold and c.text != DASH else md_escape(c.text) for c in row]
-            for row in table.rows]
+    """GitHub Markdown via pandas/tabulate; every cell escaped, bold cells as **x**, the detail after."""
+    body = [[_md_cell(c) for c in row] for row in table.rows]
     headers = [md_escape(h) for h in table.headers]
     frame = pd.DataFrame(body, columns=headers)
     if frame.empty:
@@ -169,6 +178,7 @@ _TEX_REPLACE = {
     "–": "--",
     "—": "---",
     "±": r"$\pm$",
+    "†": r"$^{\dagger}$",
     "≤": r"$\leq$",
     "≥": r"$\geq$",
     "·": r"$\cdot$",
@@ -189,6 +199,11 @@ def tex_escape(text) -> str:
     return _TEX_PATTERN.sub(lambda m: _TEX_REPLACE[m.group(0)], str(text))
 
 
+def _tex_cell(cell: Cell) -> str:
+    text = rf"\textbf{{{tex_escape(cell.text)}}}" if cell.bold and cell.text != DASH else tex_escape(cell.text)
+    return rf"{text}\,{{\scriptsize {tex_escape(cell.detail)}}}" if cell.detail else text
+
+
 def table_latex(table: Table) -> str:
     """A booktabs ``table`` float (needs ``\\usepackage{booktabs}``); bold as ``\\textbf``, the
     floor row in italics between midrules."""
@@ -207,7 +222,7 @@ def table_latex(table: Table) -> str:
     for row, kind in zip(table.rows, table.row_kinds):
         if previous is not None and kind != previous and "floor" in (kind, previous):
             lines.append(r"\midrule")
-        cells = [rf"\textbf{{{tex_escape(c.text)}}}" if c.bold and c.text != DASH else tex_escape(c.text) for c in row]
+        cells = [_tex_cell(c) for c in row]
         if kind == "floor":
             cells = [rf"\textit{{{c}}}" for c in cells]
         lines.append(" & ".join(cells) + r" \\")

@@ -155,7 +155,7 @@ def report(tmp_path_factory):
 
 def test_write_reports_contract_and_static_self_containment(report):
     paths, out = report
-    assert sorted(paths) == ["report.html", "summary.md", "summary.tex", "timing.csv", "timing.md"]
+    assert sorted(paths) == ["report.html", "statistics.csv", "summary.md", "summary.tex", "timing.csv", "timing.md"]
     page = paths["report.html"].read_text()
     parsed = _Collect()
     parsed.feed(page)
@@ -167,6 +167,10 @@ def test_write_reports_contract_and_static_self_containment(report):
     assert all(link.startswith("#") for link in parsed.links)  # only in-page anchors
     assert "MeshError: NaN loss at step 120" in page  # the failed jobs' error text
     assert re.search(r"clipped at\s+0\.01", page)  # error colour scale stated
+    # the mean with its interval, sdf bold as a tie (3 shapes: no difference can be significant), said
+    assert '<td class="r best">4.500 <span class="muted">[4.500, 4.500]</span></td>' in page
+    assert '<td class="r best">8.500† <span class="muted">[8.500, 8.500]</span></td>' in page
+    assert "tied with sdf" in page and "tied by construction: sdf" in page
 
 
 def test_missing_meshes_dir_and_unreadable_mesh(tmp_path):
@@ -186,7 +190,7 @@ def test_compare_runs_writes_every_file(tmp_path):
     runs = [{"name": name, "results": results, "floor": floor, "context": CONTEXT, "meshes_dir": None}
             for name in ("a", "b")]
     paths = reports.compare_runs(runs, tmp_path)
-    assert sorted(paths) == ["report.html", "summary.md", "summary.tex", "timing.csv", "timing.md"]
+    assert sorted(paths) == ["report.html", "statistics.csv", "summary.md", "summary.tex", "timing.csv", "timing.md"]
     assert "Runs side by side" in paths["report.html"].read_text()
 
 
@@ -282,8 +286,9 @@ def test_html_summary_counts_empty_predictions(tmp_path):
     page = reports.write_reports(results, floor, CONTEXT, tmp_path)["report.html"].read_text()
     summary = page[page.index('id="summary"'):page.index('id="gallery"')]
     headers = re.findall(r"<th[^>]*>([^<]*)</th>", summary.split("</thead>")[0])
-    first_row = re.findall(r"<td[^>]*>([^<]*)</td>", summary.split("<tbody>")[1].split("</tr>")[0])
-    row = dict(zip(headers, first_row))
+    first_row = re.findall(r"<td[^>]*>([^<]*)(?:<span[^>]*>[^<]*</span>)?</td>",  # the value, not its interval
+                           summary.split("<tbody>")[1].split("</tr>")[0])
+    row = dict(zip(headers, (cell.strip() for cell in first_row)))
     # sals CD x1e3 over the 5 non-empty jobs: (4 + 5 + 4 + 5 + 4) / 5 = 4.400
     assert (row["method"], row["jobs"], row["empty"], row["CD ×1e3 ↓"]) == ("sals", "6", "1", "4.400")
     assert "CD, NC: over non-empty predictions" in summary

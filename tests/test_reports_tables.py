@@ -4,7 +4,9 @@ The fake run (CONTEXT): 3 shapes x 2 methods x 2 seeds, no empty prediction. sal
 ef1 = 0.6; sdf: cd = 0.008 (+0.001 for seed 1), ecd = 0.04, ef1 = 0.3, its 'cylinder' jobs fail and
 its 'sphere' seed-0 prediction has no edge points (ecd NaN, flag set, ef1 = 0). So by hand, in table
 units: sals CD mean = (4 + 5) / 2 = 4.500, sdf CD mean = 8.500, sals ECD 2.000, sdf ECD 4.000 over
-3 jobs with 1 NaN, sdf EF1 = (0 + 0.3 * 3) / 4 = 0.225, floor CD 1.100.
+3 jobs with 1 NaN, sdf EF1 = (0 + 0.3 * 3) / 4 = 0.225, floor CD 1.100. Intervals (mean over shapes of the
+seed means): every shape of sals has CD 4.5, so [4.500, 4.500]; sdf EF1 per shape is 0.3 (cube) and 0.15
+(sphere), so [0.150, 0.300]. Two or three shapes can never make a difference significant: sdf ties (bold, †).
 """
 
 from __future__ import annotations
@@ -56,7 +58,7 @@ def make_results() -> tuple[pd.DataFrame, pd.DataFrame]:
 
 
 def write_tables(results, floor, context, out) -> dict:
-    """summary.md/.tex and timing.csv/.md, as write_reports writes them (without report.html)."""
+    """summary.md/.tex, statistics.csv and timing.csv/.md, as write_reports writes them (without report.html)."""
     summary = build_summary(results, floor, context)
     return {**write_summary(summary, context, out), **write_timing(summary.results, context, out)[0]}
 
@@ -78,6 +80,11 @@ def md_tables(text: str) -> dict[str, list[list[str]]]:
     return out
 
 
+def value(cell: str) -> str:
+    """A mean cell without its interval: '**4.500** \\[4.1, 4.9\\]' -> '**4.500**'."""
+    return cell.split(r" \[")[0]
+
+
 @pytest.fixture(scope="module")
 def written(tmp_path_factory):
     results, floor = make_results()
@@ -87,7 +94,7 @@ def written(tmp_path_factory):
 
 def test_files_written(written):
     paths, _, _ = written
-    assert sorted(paths) == ["summary.md", "summary.tex", "timing.csv", "timing.md"]
+    assert sorted(paths) == ["statistics.csv", "summary.md", "summary.tex", "timing.csv", "timing.md"]
     assert all(p.is_file() and p.stat().st_size > 0 for p in paths.values())
 
 
@@ -102,14 +109,19 @@ def test_mean_table_rows_units_bold_and_nan_count(written):
     assert "CD ×1e3 ↓" in col and "ECD ×1e2 ↓" in col and "NC ↑" in col and "EF1 ↑" in col
     assert "F1@0.005 ↑" in col and "F1@0.01 ↑" in col
     sals, sdf, floor = body
-    assert sals[col["CD ×1e3 ↓"]] == "**4.500**"  # cd 0.004 and 0.005 -> 4.5e-3 -> 4.500, best (bold)
-    assert sdf[col["CD ×1e3 ↓"]] == "8.500"
-    assert sals[col["ECD ×1e2 ↓"]] == "**2.000**" and sdf[col["ECD ×1e2 ↓"]] == "4.000"
-    assert sals[col["EF1 ↑"]] == "**0.600**" and sdf[col["EF1 ↑"]] == "0.225"
+    # cd 0.004 and 0.005 -> 4.5e-3 -> 4.500, best (bold), the same on every shape: interval [4.500, 4.500]
+    assert sals[col["CD ×1e3 ↓"]] == r"**4.500** \[4.500, 4.500\]"
+    assert sdf[col["CD ×1e3 ↓"]] == r"**8.500†** \[8.500, 8.500\]"  # 2 shapes in common: a tie, never a loss
+    assert value(sals[col["ECD ×1e2 ↓"]]) == "**2.000**" and value(sdf[col["ECD ×1e2 ↓"]]) == "**4.000†**"
+    assert sals[col["EF1 ↑"]] == r"**0.600** \[0.600, 0.600\]"
+    assert sdf[col["EF1 ↑"]] == r"**0.225†** \[0.150, 0.300\]"  # shapes 0.3 and 0.15
     assert sdf[col["ECD NaN"]] == "1" and sals[col["ECD NaN"]] == "0"
     assert header.index("ECD NaN") == header.index("ECD ×1e2 ↓") + 1  # next to the ECD mean
     assert (sals[col["jobs"]], sals[col["failed"]], sdf[col["jobs"]], sdf[col["failed"]]) == ("6", "0", "6", "2")
-    assert floor[col["CD ×1e3 ↓"]] == "1.100" and "**" not in "".join(floor)  # reference, never bold
+    assert floor[col["CD ×1e3 ↓"]] == r"1.100 \[1.100, 1.100\]"
+    assert "**" not in "".join(floor)  # reference, never bold
+    assert "tied by construction: sdf (CD, NC, F1@0.005, F1@0.01, ECD, EF1)" in text  # why sdf ties, said
+    assert "95% percentile-bootstrap confidence interval of the mean over shapes" in text
     assert "Protocol:" in text and "1,000,000" in text and "0.005, 0.01" in text and "128³" in text
 
 
@@ -120,7 +132,9 @@ def test_median_std_and_per_shape_tables(written):
     col = {h: i for i, h in enumerate(std[0])}
     # sals CD x1e3 values 4,5,4,5,4,5: sample std = sqrt(6 * 0.25 / 5) = 0.5477
     assert std[1][col["CD ×1e3 ↓"]] == f"{np.sqrt(1.5 / 5):.3f}"
-    assert "**" not in "".join(sum(std, []))  # no bold in the spread table
+    assert "**" not in "".join(sum(std, [])) and "[" not in "".join(sum(std, []))  # no bold, no interval
+    median = tables["Median over shapes and seeds"]
+    assert [r[col["EF1 ↑"]] for r in median[1:]] == ["**0.600**", "**0.300†**", "0.900"]  # ties, no interval
     per_shape = tables["Per shape: CD ×1e3 ↓ (mean over seeds)"]
     assert per_shape[0] == ["shape", "sals", "sdf", "floor"]
     assert per_shape[1] == ["cube", "**4.500**", "8.500", "1.100"]
@@ -150,7 +164,8 @@ def test_latex_is_structurally_sound(written, tmp_path):
     assert tex.count(r"\begin{tabular}") == tex.count(r"\end{tabular}") >= 5
     assert tex.count(r"\begin{table}") == tex.count(r"\end{table}") == tex.count(r"\begin{tabular}")
     assert r"\toprule" in tex and r"\midrule" in tex and r"\bottomrule" in tex
-    assert r"\textbf{4.500}" in tex and r"$\downarrow$" in tex and r"$\uparrow$" in tex
+    assert r"\textbf{4.500}\,{\scriptsize [4.500, 4.500]}" in tex and r"\textbf{8.500$^{\dagger}$}" in tex
+    assert r"$\downarrow$" in tex and r"$\uparrow$" in tex and "tied by construction" in tex  # caption says why
     assert r"$\times 10^{3}$" in tex
     # every row of every tabular has as many cells as the column spec has columns
     for spec, inner in re.findall(r"\\begin\{tabular\}\{([lrc]+)\}(.*?)\\end\{tabular\}", tex, flags=re.S):
@@ -204,7 +219,7 @@ def test_ndc_preset_run_with_missing_columns(tmp_path):
     mean = md_tables(paths["summary.md"].read_text())["Mean over shapes and seeds"]
     col = {h: i for i, h in enumerate(mean[0])}
     assert "F1@0.003 ↑" in col and "F1@0.005 ↑" not in col
-    assert mean[1][col["CD ×1e5 ↓"]] == "**450.000**"  # 4.5e-3 x 1e5
+    assert mean[1][col["CD ×1e5 ↓"]] == r"**450.000** \[450.000, 450.000\]"  # 4.5e-3 x 1e5
 
 
 def test_bad_frames_and_contexts_give_one_line_errors(tmp_path):
@@ -244,11 +259,16 @@ def test_compare_runs_side_by_side(tmp_path):
     paths = write_comparison(comparison, tmp_path)
     table = md_tables(paths["summary.md"].read_text())["Runs side by side: mean over shapes and seeds"]
     col = {h: i for i, h in enumerate(table[0])}
-    rows = [(r[0], r[1], r[col["CD ×1e3 ↓"]], r[col["ECD NaN"]]) for r in table[1:]]
-    assert rows == [("base", "sals", "4.500", "0"), ("base", "sdf", "8.500", "1"),
+    rows = [(r[0], r[1], value(r[col["CD ×1e3 ↓"]]), r[col["ECD NaN"]]) for r in table[1:]]
+    # best over both runs: half/sals; 2 or 3 shapes in common cannot make anything significantly worse
+    assert rows == [("base", "sals", "**4.500†**", "0"), ("base", "sdf", "**8.500†**", "1"),
                     ("base", "floor (GT vs resample)", "1.100", "0"),
-                    ("half", "sals", "**2.250**", "0"), ("half", "sdf", "4.250", "1"),
+                    ("half", "sals", "**2.250**", "0"), ("half", "sdf", "**4.250†**", "1"),
                     ("half", "floor (GT vs resample)", "1.100", "0")]
+    stats = pd.read_csv(paths["statistics.csv"])
+    cd = stats[stats["metric"] == "cd"].set_index(["run", "method"])
+    assert cd.at[("half", "sals"), "mean"] == pytest.approx(2.25) and np.isnan(cd.at[("half", "sals"), "p_vs_best"])
+    assert cd.at[("base", "sals"), "pairs"] == 3 and cd.at[("base", "sals"), "p_vs_best"] == pytest.approx(0.25)
     # the same builder as one run's mean table: the same columns after the 'run' column
     single = md_tables(write_tables(results, floor, CONTEXT, tmp_path / "one")["summary.md"].read_text())
     assert table[0][1:] == single["Mean over shapes and seeds"][0]
@@ -289,8 +309,9 @@ def test_empty_prediction_is_counted_and_cd_mean_is_over_the_others(tmp_path):
     col = {h: i for i, h in enumerate(mean[0])}
     row = mean[1]
     assert (row[col["jobs"]], row[col["failed"]], row[col["empty"]]) == ("3", "0", "1")
-    assert row[col["CD ×1e3 ↓"]] == "**3.000**" and row[col["F1@0.01 ↑"]] == "**0.500**"
-    assert row[col["ECD ×1e2 ↓"]] == "**3.000**" and row[col["ECD NaN"]] == "1"
+    assert row[col["CD ×1e3 ↓"]] == r"**3.000** \[2.000, 4.000\]"  # the interval over the 2 non-empty shapes
+    assert value(row[col["F1@0.01 ↑"]]) == "**0.500**"
+    assert value(row[col["ECD ×1e2 ↓"]]) == "**3.000**" and row[col["ECD NaN"]] == "1"
     assert "CD, NC: over non-empty predictions" in text and "an empty prediction scoring 0" in text
     per_shape = md_tables(text)["Per shape: CD ×1e3 ↓ (mean over seeds)"]
     assert per_shape[3] == ["cylinder", "empty"]
