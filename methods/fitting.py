@@ -22,7 +22,7 @@ from __future__ import annotations
 import io
 import math
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Callable, Sequence
 
 import numpy as np
@@ -31,6 +31,7 @@ import torch
 from benchmark.registry import Registry
 from methods.device import get_device, seeded_generator, synchronize
 from methods.network import BACKBONES, GridNetwork, make_network
+from methods.params import Param, ParamError
 
 
 class FittingError(RuntimeError):
@@ -125,9 +126,36 @@ for _budget in (
     BUDGETS.register(_budget.name, _budget)
 
 
-def get_budget(budget: str | Budget) -> Budget:
-    """A budget by name (or the budget itself); unknown names list the known ones."""
-    return budget if isinstance(budget, Budget) else BUDGETS.get(budget)
+#: Budget settings a run may override (``--budget-param NAME=VALUE``, sweep keys ``budget.NAME``),
+#: typed and range-checked like method parameters; the defaults shown are only the types' carriers.
+BUDGET_PARAMS: dict[str, Param] = {
+    "iterations": Param(1, "optimizer steps", ge=1),
+    "batch_size": Param(1, "samples per step", ge=1),
+    "num_samples": Param(1, "training samples M drawn by the shared sampler", ge=100),
+    "depth": Param(1, "linear layers of the MLP (the grid backbone's head)", ge=2),
+    "width": Param(1, "hidden width of the MLP", ge=1),
+    "lr": Param(1.0, "MLP learning rate at the first step", gt=0),
+    "lr_final": Param(1.0, "MLP learning rate at the last step", ge=0),
+    "weight_decay": Param(1.0, "AdamW weight decay of the MLP", ge=0),
+    "lr_grid": Param(1.0, "feature-grid learning rate at the first step", gt=0),
+    "lr_grid_final": Param(1.0, "feature-grid learning rate at the last step", ge=0),
+    "grid_channels": Param(1, "features per grid level", ge=1),
+}
+
+
+def get_budget(budget: str | Budget, overrides: dict | None = None) -> Budget:
+    """A budget by name (or the budget itself), with ``overrides`` of :data:`BUDGET_PARAMS` applied
+    (typed, range-checked); unknown names list the known ones. The overridden budget keeps its
+    name: every value is in :func:`dataclasses.asdict` of it, which keys the weights cache."""
+    base = budget if isinstance(budget, Budget) else BUDGETS.get(budget)
+    if not overrides:
+        return base
+    unknown = sorted(set(overrides) - set(BUDGET_PARAMS))
+    if unknown:
+        raise ParamError(f"budget has no setting '{unknown[0]}' that a run may change; known: "
+                         f"{', '.join(sorted(BUDGET_PARAMS))}")
+    typed = {k: BUDGET_PARAMS[k].parse(v, f"budget.{k}") for k, v in overrides.items()}
+    return replace(base, **typed)
 
 
 @dataclass

@@ -14,6 +14,10 @@ Keys:
 * meshes: the weights key (neural) or the mode (oracle), the method's full parameters, the grid and
   the code digest of the method's module (its extractor and query code included).
 
+Jobs that need the same fit (a sweep of extraction settings) share it: the job that fits holds the
+weights entry's lock (``weights/<method>_<key>.lock``, :meth:`RunCaches.fit_lock`); the others wait
+and load the saved weights. With the caches off every job fits for itself.
+
 :func:`code_digest` follows the imports it finds in the source (``import``/``from`` statements,
 also inside functions) through the project's packages (benchmark, methods, datasets) and hashes
 every module file reached. A module that cannot be found raises instead of counting as empty, so a
@@ -23,12 +27,16 @@ renamed module never silently stops invalidating the caches that depend on it.
 from __future__ import annotations
 
 import ast
+import contextlib
+import fcntl
 import hashlib
 import importlib.util
 import io
 import json
+import os
 from functools import lru_cache
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
@@ -176,6 +184,23 @@ class RunCaches:
         path = self._path("weights", method.name, key, ".pt")
         if path is not None:
             write_checked(path, fitting.model_to_bytes(fit.model, budget, method.name, fit.final_loss))
+
+    @contextlib.contextmanager
+    def fit_lock(self, method, key: str) -> Iterator[None]:
+        """Hold the exclusive lock of one weights entry (an flock, so it works across processes and
+        is released if the holder dies): a second job needing the same fit waits, then loads it."""
+        path = self._path("weights", method.name, key, ".lock")
+        if path is None:
+            yield
+            return
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+            yield
+        finally:
+            fcntl.flock(fd, fcntl.LOCK_UN)
+            os.close(fd)
 
     # -- meshes -----------------------------------------------------------------------------
     def load_mesh(self, method: str, key: str):

@@ -27,7 +27,21 @@ EXIT_OK, EXIT_REFUSED, EXIT_FAILED_TASKS = 0, 2, 3
 RUNS_ROOT = Path("runs")
 
 #: Command-line destination -> RunConfig field (where the names differ).
-_FIELD_OF = {"list": "list_file", "seed": "seeds", "plugin": "plugins", "method_param": "method_params"}
+_FIELD_OF = {"list": "list_file", "seed": "seeds", "plugin": "plugins", "method_param": "method_params",
+             "budget_param": "budget_params"}
+#: Shipped recipes: ``benchmark/recipes/<name>.toml`` (``--recipe NAME``).
+RECIPES_DIR = Path(__file__).resolve().parent.parent / "recipes"
+
+
+def recipe_names() -> list[str]:
+    return sorted(p.stem for p in RECIPES_DIR.glob("*.toml"))
+
+
+def recipe_path(name: str) -> Path:
+    path = RECIPES_DIR / f"{name}.toml"
+    if not path.is_file():
+        raise ConfigError(f"--recipe: unknown recipe '{name}'; known recipes: {', '.join(recipe_names())}")
+    return path
 
 
 class _OneLineParser(argparse.ArgumentParser):
@@ -104,6 +118,19 @@ def build_parser() -> argparse.ArgumentParser:
     a("--method-param", dest="method_param", action="append", metavar="METHOD.NAME=VALUE",
       help="override an extractor parameter, e.g. sals.o_threshold=0.2 or sals.normals=no (repeatable); "
            "typed and range-checked against the method's parameters")
+    a("--budget-param", dest="budget_param", action="append", metavar="NAME=VALUE",
+      help="override a value of the budget, e.g. num_samples=500000 or iterations=2000 (repeatable; "
+           "typed and range-checked; recorded in config.json and every table caption)")
+    a("--sweep", action="append", metavar="KEY=V1,V2,...",
+      help="run every value of a setting in one run directory (repeatable: the cross product). KEY: grid, "
+           "eval_points, budget, seed, budget.NAME (e.g. budget.num_samples) or METHOD.NAME (e.g. "
+           "sals.o_threshold); values typed like --method-param. Each row records its values in columns "
+           "sweep.KEY; jobs that differ only in extraction settings share one fit; a neural sweep also "
+           "runs its oracle ceiling (see --no-ceiling)")
+    a("--no-ceiling", dest="ceiling", action="store_const", const=False,
+      help="a neural sweep without its oracle ceiling (the same sweep on the exact field)")
+    a("--recipe", metavar="NAME", help="a shipped sweep reproducing one of the paper's ablations "
+                                       f"({', '.join(recipe_names())}); options given here override it")
     a("--cache-dir", dest="cache_dir", metavar="DIR", help="cache root (default $SALSBENCH_CACHE or ~/.cache/salsbench)")
     a("--no-cache", dest="no_cache", action="store_const", const=True,
       help="do not read or write the weights/mesh/field caches")
@@ -149,17 +176,61 @@ def parse_method_params(items: Sequence[str] | None, plugins: Sequence[str]) -> 
 
 def _overrides(args: argparse.Namespace, plugins: Sequence[str]) -> dict[str, Any]:
     """The RunConfig fields given on the command line (paths made absolute)."""
-    cli_only = {"config", "out", "resume"}
+    cli_only = {"config", "out", "resume", "recipe"}
     given = {_FIELD_OF.get(k, k): v for k, v in vars(args).items() if v is not None and k not in cli_only}
     for key in ("data_dir", "list_file", "cache_dir"):
         if key in given:
             given[key] = str(Path(given[key]).expanduser().resolve())
     if "method_params" in given:
         given["method_params"] = parse_method_params(given["method_params"], given.get("plugins", plugins))
+    if "budget_params" in given:
+        given["budget_params"] = _key_values(given["budget_params"], "--budget-param", "NAME=VALUE (e.g. iterations=2000)")
+    if "sweep" in given:
+        from benchmark.run.sweep import split_items
+
+        given["sweep"] = split_items(given["sweep"])
     for key in ("methods", "seeds", "plugins"):
         if key in given:
             given[key] = tuple(dict.fromkeys(given[key]))
     return given
+
+
+def _key_values(items: Sequence[str], flag: str, form: str) -> dict[str, str]:
+    """``['a=1', 'b=x']`` -> ``{'a': '1', 'b': 'x'}`` (typed later, against the registry)."""
+    out = {}
+    for item in items:
+        key, eq, value = item.partition("=")
+        if not (eq and key.strip() and value.strip()):
+            raise ConfigError(f"{flag} '{item}': use {form}")
+        out[key.strip()] = value.strip()
+    return out
+
+
+def typed_settings(config: RunConfig) -> RunConfig:
+    """The config with its budget overrides and sweep values typed (as the registry declares them),
+    so a value given as text on the command line equals the same value from a TOML file."""
+    if not (config.budget_params or config.sweep):
+        return config
+    import_plugins(config.plugins)
+    from benchmark.run.sweep import typed_sweep
+    from methods.base import METHODS
+    from methods.fitting import BUDGET_PARAMS
+
+    budget_params = {}
+    for key, value in config.budget_params.items():
+        if key not in BUDGET_PARAMS:
+            raise ConfigError(f"--budget-param: the budget has no setting '{key}' a run may change; known: "
+                              f"{', '.join(sorted(BUDGET_PARAMS))}")
+        try:
+            budget_params[key] = BUDGET_PARAMS[key].parse(value, f"--budget-param {key}")
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+    methods = config.methods or tuple(METHODS.names())
+    for m in methods:
+        if m not in METHODS:
+            raise ConfigError(f"--methods: {METHODS.unknown(m)}")
+    sweep = typed_sweep(config.sweep, methods, config.mode)
+    return dataclasses.replace(config, budget_params=budget_params, sweep=sweep)
 
 
 def latest_run_dir(root: Path = RUNS_ROOT) -> Path | None:
@@ -184,16 +255,20 @@ def configure(args: argparse.Namespace, run_dir: Path) -> RunConfig:
     Called with the directory locked, so no other driver changes config.json meanwhile.
     """
     saved = saved_config(run_dir)
-    if args.resume and args.config:
-        raise ConfigError("--resume continues a run with its saved config.json; --config starts a new one: give one")
+    if args.resume and (args.config or args.recipe):
+        raise ConfigError("--resume continues a run with its saved config.json; --config/--recipe start a new "
+                          "one: give one")
+    if args.config and args.recipe:
+        raise ConfigError("--config and --recipe both give the settings: give one")
     if args.resume:
         if saved is None:
             raise ConfigError(f"--resume: {run_dir / 'config.json'} does not exist (nothing to resume)")
         base = saved
     else:
-        base = RunConfig.load(args.config) if args.config else RunConfig()
+        source = args.config or (recipe_path(args.recipe) if args.recipe else None)
+        base = RunConfig.load(source) if source else RunConfig()
     try:
-        config = RunConfig(**{**base.to_dict(), **_overrides(args, base.plugins)})
+        config = typed_settings(RunConfig(**{**base.to_dict(), **_overrides(args, base.plugins)}))
     except TypeError as exc:
         raise ConfigError(str(exc)) from None
     if saved is not None:

@@ -84,6 +84,9 @@ class RunConfig:
     eval_points: int | None = _f(None, "identity", "metric samples per mesh (None: the preset's)")
     method_params: Mapping[str, Mapping[str, Any]] = _f({}, "identity", "extractor parameters per method")
     checkpoints: tuple[float, ...] = _f((), "identity", "fractions of the fit at which the network is scored too")
+    budget_params: Mapping[str, Any] = _f({}, "identity", "overrides of the budget's values (neural mode)")
+    sweep: Mapping[str, tuple] = _f({}, "identity", "swept settings, {key: values} (cross product)")
+    ceiling: bool = _f(True, "identity", "a neural sweep also runs the same sweep in oracle mode")
     methods: tuple[str, ...] = _f((), "scope", "methods (empty: all registered)")
     seeds: tuple[int, ...] = _f((0,), "scope", "seeds")
     executor: str = _f("local", "execution", "local, process or ray")
@@ -141,6 +144,13 @@ class RunConfig:
                 raise ConfigError("--checkpoints needs --mode neural (oracle mode fits nothing)")
             if not all(0 < f <= 1 for f in c) or any(b <= a for a, b in zip(c, c[1:])):
                 raise ConfigError(f"--checkpoints must be increasing fractions of the budget in (0, 1], got {list(c)}")
+        if self.budget_params and self.mode != "neural":
+            raise ConfigError("--budget-param needs --mode neural (oracle mode fits nothing)")
+        swept = tuple(self.sweep.get("seed", ()))
+        if swept and all(isinstance(v, int) and not isinstance(v, bool) for v in swept):  # else not typed yet
+            if self.seeds not in ((0,), swept):
+                raise ConfigError("--seed and --sweep seed=... both give the seeds: give one")
+            object.__setattr__(self, "seeds", swept)
         if self.limit is not None and self.limit < 1:
             raise ConfigError(f"--limit must be >= 1, got {self.limit}")
         for name in ("workers", "threads"):
@@ -213,8 +223,12 @@ def _plain(value):
     if isinstance(value, tuple):
         return list(value)
     if isinstance(value, Mapping):
-        return {k: _plain(v) for k, v in sorted(value.items())}
+        return {k: _plain(v) for k, v in value.items()}
     return value
+
+
+def _is_scalar(value) -> bool:
+    return isinstance(value, (str, int, float, bool))
 
 
 def _coerce(f: dataclasses.Field, value):
@@ -239,10 +253,19 @@ def _coerce(f: dataclasses.Field, value):
             if not all(isinstance(v, int) and not isinstance(v, bool) for v in items):
                 raise TypeError
             return tuple(int(v) for v in items)
-        if kind.startswith("Mapping"):
+        if kind.startswith("Mapping[str, Mapping"):
             if not isinstance(value, Mapping) or not all(isinstance(v, Mapping) for v in value.values()):
                 raise TypeError
             return {str(m): dict(p) for m, p in value.items()}
+        if kind.startswith("Mapping[str, tuple"):
+            if not isinstance(value, Mapping) or not all(
+                    isinstance(v, (list, tuple)) and all(_is_scalar(x) for x in v) for v in value.values()):
+                raise TypeError
+            return {str(k): tuple(v) for k, v in value.items()}
+        if kind.startswith("Mapping"):
+            if not isinstance(value, Mapping) or not all(_is_scalar(v) for v in value.values()):
+                raise TypeError
+            return {str(k): v for k, v in value.items()}
         if kind.startswith("bool"):
             if not isinstance(value, bool):
                 raise TypeError
@@ -270,6 +293,28 @@ def _coerce(f: dataclasses.Field, value):
 
 
 @dataclass(frozen=True)
+class Variant:
+    """One point of a sweep (or the whole run when nothing is swept).
+
+    values : {sweep key: value} of this point (empty without a sweep). config : the run's config
+    with those values applied (and validated by :class:`RunConfig` itself); for a ceiling variant
+    the same in oracle mode. method_params : full, typed parameters per method. keys : the
+    :class:`benchmark.run.sweep.SweepKey` of each swept key. first : the sweep's first point in the
+    run's own mode (its meshes keep the plain file names the gallery reads).
+    """
+
+    values: dict[str, Any]
+    config: RunConfig
+    method_params: dict[str, dict[str, Any]]
+    keys: dict[str, Any]
+    first: bool
+
+    def applicable(self, method: str) -> dict[str, Any]:
+        """The values of the keys a job of ``method`` in this variant's mode depends on."""
+        return {k: v for k, v in self.values.items() if self.keys[k].applies_to(method, self.config.mode)}
+
+
+@dataclass(frozen=True)
 class Plan:
     """A resolved run: every name looked up, every parameter typed, the shapes listed.
 
@@ -287,10 +332,13 @@ class Plan:
     eval_points: int
     dataset_options: dict[str, Any]
     shapes: tuple[str, ...]
+    sweep: dict[str, tuple] = field(default_factory=dict)
+    variants: tuple["Variant", ...] = ()
 
     def record(self) -> dict[str, Any]:
         """The resolved facts for config.json (JSON-ready)."""
         return {"methods": list(self.methods), "method_params": self.method_params,
+                "sweep": {k: list(v) for k, v in self.sweep.items()}, "sweep_keys": list(self.sweep),
                 "budget": dataclasses.asdict(self.budget) if self.budget is not None else None,
                 "metric_preset": self.preset.to_dict(), "eval_points": self.eval_points,
                 "protocol": self.preset.describe(self.eval_points),
@@ -324,7 +372,7 @@ def resolve(config: RunConfig) -> Plan:
             raise ConfigError(f"--plugin {name}: cannot load ({type(exc).__name__}: {exc})") from None
     from benchmark.metrics import PRESETS
     from methods.base import METHODS
-    from methods.fitting import BUDGETS
+    from methods.fitting import get_budget
     from methods.params import ParamError
 
     try:
@@ -335,7 +383,7 @@ def resolve(config: RunConfig) -> Plan:
             if m not in methods:
                 raise ConfigError(f"--method-param names method '{m}', which is not in --methods ({', '.join(methods)})")
         params = {m: METHODS.get(m)(**config.method_params.get(m, {})).params for m in methods}
-        budget = BUDGETS.get(config.budget) if config.mode == "neural" else None
+        budget = get_budget(config.budget, config.budget_params) if config.mode == "neural" else None
         if config.metric_preset not in PRESETS:
             raise ConfigError(f"unknown metric preset '{config.metric_preset}'; known metric presets: "
                               f"{', '.join(PRESETS)}")
@@ -361,4 +409,50 @@ def resolve(config: RunConfig) -> Plan:
     if not shapes:
         raise ConfigError(f"dataset '{config.dataset}' has no shapes with these options ({options or 'none'})")
     n = config.eval_points if config.eval_points is not None else preset.n_points
-    return Plan(config, methods, params, budget, preset, int(n), options, tuple(shapes))
+    sweep, variants = _variants(config, methods)
+    return Plan(config, methods, params, budget, preset, int(n), options, tuple(shapes), sweep, variants)
+
+
+def _variants(config: RunConfig, methods: tuple[str, ...]) -> tuple[dict[str, tuple], tuple[Variant, ...]]:
+    """The typed sweep and its points: every combination in the run's mode, then (a neural sweep
+    with ``ceiling``) the same combinations in oracle mode. Each point's config is rebuilt, so the
+    RunConfig checks (grid memory, ranges) and the method/budget checks apply to every value."""
+    from benchmark.run import sweep as sweeps
+    from methods.base import METHODS
+    from methods.fitting import get_budget
+    from methods.params import ParamError
+
+    typed = sweeps.typed_sweep(config.sweep, methods, config.mode)
+    keys = {k: sweeps.sweep_key(k, methods, config.mode) for k in typed}
+    for name, key in keys.items():
+        given = config.method_params.get(key.method, {}) if key.kind == "method" else (
+            config.budget_params if key.kind == "budget" else {})
+        if key.target in given:
+            raise ConfigError(f"--sweep {name} and a fixed value of the same setting are both given: give one")
+    modes = [config.mode] + (["oracle"] if typed and config.ceiling and config.mode == "neural" else [])
+    out = []
+    for mode in modes:
+        for i, values in enumerate(sweeps.variants(typed)):
+            run = {keys[k].target: v for k, v in values.items() if keys[k].kind == "run" and k != "seed"}
+            if "seed" in values:
+                run["seeds"] = (values["seed"],)
+            budget_params = {**config.budget_params,
+                             **{keys[k].target: v for k, v in values.items() if keys[k].kind == "budget"}}
+            method_params = {m: dict(p) for m, p in config.method_params.items()}
+            for k, v in values.items():
+                if keys[k].kind == "method":
+                    method_params.setdefault(keys[k].method, {})[keys[k].target] = v
+            neural = mode == "neural"
+            if not neural:
+                run.update(budget=None, budget_params={}, checkpoints=())
+            cfg = dataclasses.replace(config, **{"sweep": {}, "mode": mode, "method_params": method_params,
+                                                 "budget_params": budget_params, **run})
+            try:
+                if cfg.budget is not None:
+                    get_budget(cfg.budget, cfg.budget_params)
+                params = {m: METHODS.get(m)(**cfg.method_params.get(m, {})).params for m in methods}
+            except (ParamError, ValueError) as exc:
+                where = f"--sweep point {sweeps.variant_tag(values)}: " if values else ""
+                raise ConfigError(where + str(exc).splitlines()[0]) from None
+            out.append(Variant(values, cfg, params, keys, first=(i == 0 and mode == config.mode)))
+    return typed, tuple(out)

@@ -38,8 +38,9 @@ def record_result(db: ResultsDB, run_dir: RunDirectory, result: TaskResult, firs
     spec = result.spec
     mesh_path = None
     if result.mesh_ply is not None:
-        stem = "gt" if result.kind == "floor" else (
-            spec.method if spec.seed == first_seed else f"{spec.method}_seed{spec.seed}")
+        stem = "gt" if result.kind == "floor" else "_".join(
+            [spec.method] + ([spec.variant] if spec.variant else []) + ([] if spec.seed == first_seed else
+                                                                       [f"seed{spec.seed}"]))
         mesh_path = run_dir.mesh_relpath(spec.shape, stem)
         run_dir.write_mesh(mesh_path, result.mesh_ply)
     common = {"shape": spec.shape, "shape_hash": result.shape_hash, "shape_kind": result.shape_kind,
@@ -59,7 +60,7 @@ def record_result(db: ResultsDB, run_dir: RunDirectory, result: TaskResult, firs
         "attempts": result.attempts, "cache": ",".join(result.cache) or None,
         "cache_rejected": len(result.cache_rejected), "device": result.device, "host": result.host,
         "versions": result.versions, "info": result.info, "started": result.started, **common,
-    }, result.metrics, result.timings)
+    }, result.metrics, result.timings, sweep=spec.sweep, fitted=int(bool(result.info.get("fitted"))))
 
 
 def run(plan: Plan, run_dir: RunDirectory, record: dict, executor=None) -> RunOutcome:

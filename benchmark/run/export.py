@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from benchmark.run.records import open_run_db
+from benchmark.run.records import SWEEP_PREFIX, open_run_db
 from benchmark.run.schema import CSV_EXCLUDED, csv_lead
 
 
@@ -41,11 +41,22 @@ def table_frame(db, table: str, record: dict[str, Any]) -> pd.DataFrame:
     df = df[lead + rest]
     resolved = record.get("resolved", {})
     by = [("shape", resolved.get("shapes", []))]
+    if table == "jobs":
+        mode = record.get("config", {}).get("mode")
+        by += [("mode", [mode, "oracle"])] + [(f"{SWEEP_PREFIX}{k}", list(v)) for k, v in sweep_of(record).items()
+                                               if f"{SWEEP_PREFIX}{k}" in df.columns]
     if table in ("jobs", "checkpoints"):
         by += [("method", resolved.get("methods", [])), ("seed", record.get("config", {}).get("seeds", []))]
     if table == "checkpoints":
         by.append(("fraction", sorted(set(df["fraction"].dropna()))))
     return _ordered(df, by)
+
+
+def sweep_of(record: dict[str, Any]) -> dict[str, list]:
+    """The run's sweep, {key: values}, keys in the order given (config.json stores keys sorted)."""
+    resolved = record.get("resolved", {})
+    sweep = resolved.get("sweep", {})
+    return {k: sweep[k] for k in resolved.get("sweep_keys", sweep)}
 
 
 def report_context(record: dict[str, Any]) -> dict[str, Any]:
@@ -57,7 +68,8 @@ def report_context(record: dict[str, Any]) -> dict[str, Any]:
         "seeds": config.get("seeds", []), "methods": resolved.get("methods", []), "shapes": resolved.get("shapes", []),
         "metric_preset": config.get("metric_preset"), "eval_points": resolved.get("eval_points"),
         "device": env.get("device"), "cpu_model": env.get("cpu_model"), "gpu": env.get("gpu"),
-        "git_commit": env.get("git_commit"),
+        "git_commit": env.get("git_commit"), "sweep": sweep_of(record),
+        "budget_params": config.get("budget_params", {}),
     }
 
 

@@ -189,7 +189,7 @@ def _job_body(spec: JobSpec, shape, device, timer: StageTimer, result: TaskResul
         from methods.fitting import get_budget
 
         weights_key = digest({"shape": result.shape_hash, "method": spec.method, "input": method.input_kind,
-                              "output_dim": method.output_dim, "budget": dataclasses.asdict(get_budget(spec.budget)),
+                              "output_dim": method.output_dim, "budget": dataclasses.asdict(get_budget(spec.budget, spec.budget_params)),
                               "seed": spec.seed, "code": fit_code_digest(method)})
     mesh_key = digest({"shape": result.shape_hash, "method": spec.method, "params": method.params, "mode": spec.mode,
                        "grid": spec.grid, "weights": weights_key, "code": extraction_code_digest(method)})
@@ -198,7 +198,7 @@ def _job_body(spec: JobSpec, shape, device, timer: StageTimer, result: TaskResul
         pred_V, pred_F, timings, info, result.fit_loss = cached
         for key, seconds in timings.items():  # the stage times of the job that computed the mesh
             timer.add(key, seconds)
-        result.info.update(info)
+        result.info.update(info, fitted=0)  # the facts of the job that computed it, but no fit here
     else:
         grid_field, facts = _grid_field(spec, method, shape, device, caches, weights_key, result, report)
         report("extracting")
@@ -227,11 +227,16 @@ def _grid_field(spec: JobSpec, method, shape, device, caches, weights_key, resul
         report("querying")
         with stage("query"):
             return method.oracle_grid(fields, spec.grid, caches.fields)
-    cached = None if spec.checkpoints else caches.load_weights(method, weights_key, device)
-    if cached is not None:
-        model, result.fit_loss = cached
-    else:
+    if spec.checkpoints:  # checkpoints need the fit itself
         model = _fit(spec, method, shape, fields, device, caches, weights_key, result, report)
+    else:
+        # jobs that share a fit (a sweep of extraction settings) wait for the one fitting it, then load it
+        with caches.fit_lock(method, weights_key):
+            cached = caches.load_weights(method, weights_key, device)
+            if cached is not None:
+                model, result.fit_loss = cached
+            else:
+                model = _fit(spec, method, shape, fields, device, caches, weights_key, result, report)
     report("querying")
     with stage("query"):
         return method.neural_grid(model, spec.grid, device)
@@ -243,7 +248,7 @@ def _fit(spec, method, shape, fields, device, caches, weights_key, result: TaskR
     from benchmark.seeding import job_streams
     from methods import fitting
 
-    budget = fitting.get_budget(spec.budget)
+    budget = fitting.get_budget(spec.budget, spec.budget_params)
     streams = job_streams(shape.content_hash, spec.seed)
     report("sampling")
     with stage("sample"):
@@ -284,7 +289,7 @@ def _fit(spec, method, shape, fields, device, caches, weights_key, result: TaskR
         record("fit", -sum(pauses))
         record("checkpoints", sum(pauses))
     result.fit_loss = fit.final_loss
-    result.info.update(fit_steps=fit.iterations, fit_samples_per_s=fit.samples_per_s, fit_loop_s=fit.seconds)
+    result.info.update(fitted=1, fit_steps=fit.iterations, fit_samples_per_s=fit.samples_per_s, fit_loop_s=fit.seconds)
     caches.save_weights(method, weights_key, fit, budget)
     return fit.model
 

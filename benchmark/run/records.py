@@ -14,7 +14,9 @@ Tables (``SCHEMA_VERSION`` 2; columns declared in :mod:`benchmark.run.schema`):
 * ``meta`` -- ``key TEXT PK, value TEXT``: ``schema_version``.
 
 Metric and timing keys not declared in the schema get their own column the first time they
-appear (``ALTER TABLE``; REAL for numbers, TEXT for strings). Booleans are stored as 0/1. A key
+appear (``ALTER TABLE``; REAL for numbers, TEXT for strings). A sweep's values are columns
+``sweep.<key>`` (NULL where the key does not apply to the job); ``fitted`` is 1 for a job that
+trained its network. Booleans are stored as 0/1. A key
 that clashes with a fixed column is stored as ``metric_<key>``; non-scalar values go to ``extra``
 (JSON).
 """
@@ -45,6 +47,8 @@ MEASURED = {c.name for table in TABLES.values() for c in table if c.role in ("me
 PROTOCOL_KEYS = ("preset", "n_points", "seed")
 
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+#: Column prefix of a job's sweep values (``sweep.sals.o_threshold``; :mod:`benchmark.run.sweep`).
+SWEEP_PREFIX = "sweep."
 
 
 def column_name(key: str, fixed: Mapping[str, str]) -> str:
@@ -167,11 +171,18 @@ class ResultsDB:
             raise
 
     def write_job(self, fixed: Mapping[str, Any], metrics: Mapping[str, Any] | None = None,
-                  timings: Mapping[str, Any] | None = None) -> None:
-        """Insert (or replace) one job row and commit. ``fixed`` holds :data:`JOB_COLUMNS` fields."""
+                  timings: Mapping[str, Any] | None = None, sweep: Mapping[str, Any] | None = None,
+                  fitted: int | None = None) -> None:
+        """Insert (or replace) one job row and commit. ``fixed`` holds :data:`JOB_COLUMNS` fields;
+        ``sweep`` the job's sweep values, each in its column ``sweep.<key>``; ``fitted`` 1 when the
+        job trained its network (0: weights from the cache or a cached mesh)."""
         if "config_hash" not in fixed:
             raise KeyError("a job row needs its config_hash")
-        self._commit("jobs", [self.flatten(fixed, [metrics or {}, timings or {}], JOB_COLUMNS)])
+        row = self.flatten(fixed, [metrics or {}, timings or {}], JOB_COLUMNS)
+        row.update({f"{SWEEP_PREFIX}{k}": scalar(v)[1] for k, v in (sweep or {}).items()})
+        if fitted is not None:
+            row["fitted"] = int(fitted)
+        self._commit("jobs", [row])
 
     def write_floor(self, fixed: Mapping[str, Any], metrics: Mapping[str, Any] | None = None,
                     timings: Mapping[str, Any] | None = None) -> None:

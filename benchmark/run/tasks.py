@@ -94,12 +94,18 @@ class JobSpec(TaskSpec):
     checkpoints: tuple[float, ...] = ()
     cache_dir: str | None = None
     device: str | None = None
+    budget_params: dict = field(default_factory=dict)
+    sweep: dict = field(default_factory=dict)
+    variant: str = ""
 
     kind = "job"
 
     def identity(self) -> dict:
-        return {**super().identity(), "method": self.method, "params": self.params, "mode": self.mode,
-                "budget": self.budget, "grid": self.grid, "checkpoints": list(self.checkpoints)}
+        ident = {**super().identity(), "method": self.method, "params": self.params, "mode": self.mode,
+                 "budget": self.budget, "grid": self.grid, "checkpoints": list(self.checkpoints)}
+        if self.budget_params:  # only when given: the keys of runs without overrides stay as they were
+            ident["budget_params"] = dict(sorted(self.budget_params.items()))
+        return ident
 
     @property
     def uses_fitting(self) -> bool:
@@ -108,20 +114,37 @@ class JobSpec(TaskSpec):
 
     @property
     def label(self) -> str:
-        return f"{self.shape}/{self.method}/s{self.seed}"
+        return f"{self.shape}/{self.method}{f'[{self.variant}]' if self.variant else ''}/s{self.seed}"
 
 
 def build_tasks(plan) -> tuple[list[FloorSpec], list[JobSpec]]:
-    """Floor tasks (one per shape, first seed) and jobs (shapes x methods x seeds, table order)."""
+    """Floor tasks (one per shape and evaluation sample count, first seed) and jobs (shapes x sweep
+    points x methods x seeds, table order; a job that several sweep points share appears once)."""
+    from benchmark.run.sweep import variant_tag
+
     c = plan.config
-    common = dict(dataset=c.dataset, dataset_options=plan.dataset_options, eval_points=c.eval_points,
-                  metric_preset=c.metric_preset, plugins=c.plugins, threads=c.threads)
-    floors = [FloorSpec(shape=s, seed=c.seeds[0], **common) for s in plan.shapes]
+    common = dict(dataset=c.dataset, dataset_options=plan.dataset_options, metric_preset=c.metric_preset,
+                  plugins=c.plugins, threads=c.threads)
     cache_dir = None if c.no_cache else str(cache_root_of(c))
-    jobs = [JobSpec(shape=s, seed=seed, method=m, params=plan.method_params[m], mode=c.mode, budget=c.budget,
-                    grid=c.grid, checkpoints=c.checkpoints, cache_dir=cache_dir, **common)
-            for s in plan.shapes for m in plan.methods for seed in c.seeds]
-    return floors, jobs
+    floors: dict[str, FloorSpec] = {}
+    jobs: dict[str, JobSpec] = {}
+    for s in plan.shapes:
+        for v in plan.variants:
+            vc = v.config
+            floor = FloorSpec(shape=s, seed=c.seeds[0], eval_points=vc.eval_points, **common)
+            floors.setdefault(floor.key, floor)
+            for m in plan.methods:
+                values = v.applicable(m)
+                tag = "" if v.first or not values else variant_tag(values)
+                if vc.mode != c.mode:
+                    tag = f"{vc.mode}" + (f",{tag}" if tag else "")
+                for seed in vc.seeds:
+                    job = JobSpec(shape=s, seed=seed, method=m, params=v.method_params[m], mode=vc.mode,
+                                  budget=vc.budget, budget_params=dict(vc.budget_params), grid=vc.grid,
+                                  eval_points=vc.eval_points, checkpoints=vc.checkpoints, cache_dir=cache_dir,
+                                  sweep=values, variant=tag, **common)
+                    jobs.setdefault(job.key, job)
+    return list(floors.values()), list(jobs.values())
 
 
 def cache_root_of(config):

@@ -1,0 +1,133 @@
+"""Sweeps: one run over the cross product of setting values (``--sweep KEY=V1,V2,...``).
+
+A sweep key names one setting of a job:
+
+* a run setting: ``grid``, ``eval_points``, ``budget`` (a budget name) or ``seed``;
+* a budget value: ``budget.NAME`` for NAME in :data:`methods.fitting.BUDGET_PARAMS`
+  (``budget.num_samples``, ``budget.iterations``, ...);
+* a method parameter: ``METHOD.NAME`` (``sals.o_threshold``, ``sals.normals``, ``sals.faces``).
+
+Values are typed and range-checked by the key's :class:`methods.params.Param`, exactly as
+``--method-param`` and ``--budget-param`` values are. Several keys give their cross product, in the
+order given (:func:`variants`). A key applies to a job or not (:meth:`SweepKey.applies_to`): a
+method parameter only to that method's jobs, a budget key only to fitted (neural) jobs. A job that a
+key does not apply to is the same job for every value of the key and runs once (its row has no value
+in that key's column; the sweep reports show it as a constant reference).
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+from typing import Any, Iterable, Mapping, Sequence
+
+from benchmark.run.config import MIN_EVAL_POINTS, MIN_GRID, ConfigError
+from benchmark.seeding import MAX_SEED
+from methods.params import Param, ParamError
+
+#: Run settings a sweep may vary, typed as their RunConfig fields.
+RUN_KEYS: dict[str, Param] = {
+    "grid": Param(128, "grid points per axis on [-1, 1]", ge=MIN_GRID),
+    "eval_points": Param(1_000_000, "metric samples per mesh", ge=MIN_EVAL_POINTS),
+    "budget": Param("cpu", "fitting budget name"),
+    "seed": Param(0, "seed", ge=0, le=MAX_SEED),
+}
+
+
+@dataclass(frozen=True)
+class SweepKey:
+    """One sweep key. kind: 'run', 'budget' or 'method'; target: the RunConfig field, budget
+    setting or method parameter it sets; method: the method of a 'method' key."""
+
+    name: str
+    kind: str
+    target: str
+    param: Param
+    method: str | None = None
+
+    def applies_to(self, method: str, mode: str) -> bool:
+        """Whether a job of ``method`` in ``mode`` depends on this key."""
+        if self.kind == "method":
+            return method == self.method
+        if self.kind == "budget" or self.target == "budget":
+            return mode == "neural"
+        return True
+
+
+def known_keys(methods: Sequence[str]) -> list[str]:
+    """Every sweep key for these methods (for error messages and ``--help``)."""
+    from methods.base import METHODS
+    from methods.fitting import BUDGET_PARAMS
+
+    keys = list(RUN_KEYS) + [f"budget.{k}" for k in sorted(BUDGET_PARAMS)]
+    return keys + [f"{m}.{p}" for m in methods for p in sorted(METHODS.get(m).parameters)]
+
+
+def sweep_key(name: str, methods: Sequence[str], mode: str) -> SweepKey:
+    """The key ``name`` for a run of ``methods`` in ``mode``; ConfigError listing the known keys."""
+    from methods.base import METHODS
+    from methods.fitting import BUDGET_PARAMS
+
+    head, dot, tail = name.partition(".")
+    key = None
+    if not dot and name in RUN_KEYS:
+        key = SweepKey(name, "run", name, RUN_KEYS[name])
+    elif dot and head == "budget" and tail in BUDGET_PARAMS:
+        key = SweepKey(name, "budget", tail, BUDGET_PARAMS[tail])
+    elif dot and head in methods and tail in METHODS.get(head).parameters:
+        key = SweepKey(name, "method", tail, METHODS.get(head).parameters[tail], method=head)
+    if key is None:
+        raise ConfigError(f"--sweep: unknown key '{name}'; known keys: {', '.join(known_keys(methods))}")
+    if mode == "oracle" and not key.applies_to(key.method or "", "oracle"):
+        raise ConfigError(f"--sweep {name}: oracle mode fits nothing, so it has no budget to sweep")
+    return key
+
+
+def split_items(items: Iterable[str]) -> dict[str, list[str]]:
+    """``['sals.o_threshold=0.1,0.5', 'grid=64,128']`` -> ``{key: [raw values]}`` (ConfigError on a
+    malformed item or a key given twice)."""
+    out: dict[str, list[str]] = {}
+    for item in items:
+        key, eq, values = item.partition("=")
+        raw = [v.strip() for v in values.split(",") if v.strip()]
+        if not (eq and key.strip() and raw):
+            raise ConfigError(f"--sweep '{item}': use KEY=V1,V2,... (e.g. sals.o_threshold=0.05,0.1)")
+        if key.strip() in out:
+            raise ConfigError(f"--sweep {key.strip()} is given twice; give all its values in one --sweep")
+        out[key.strip()] = raw
+    return out
+
+
+def typed_sweep(sweep: Mapping[str, Sequence[Any]], methods: Sequence[str], mode: str) -> dict[str, tuple]:
+    """Each key's values typed and checked (ConfigError naming the key or value)."""
+    from methods.fitting import BUDGETS
+
+    typed: dict[str, tuple] = {}
+    for name, values in sweep.items():
+        key = sweep_key(name, methods, mode)
+        try:
+            parsed = tuple(key.param.parse(v, f"--sweep {name}") for v in values)
+        except ParamError as exc:
+            raise ConfigError(str(exc)) from None
+        if not parsed:
+            raise ConfigError(f"--sweep {name}: no values")
+        if len(set(parsed)) != len(parsed):
+            raise ConfigError(f"--sweep {name}: values must not repeat, got {list(values)}")
+        if name == "budget":
+            for b in parsed:
+                if b not in BUDGETS:
+                    raise ConfigError(f"--sweep budget: {BUDGETS.unknown(b)}")
+        typed[name] = parsed
+    return typed
+
+
+def variants(sweep: Mapping[str, tuple]) -> list[dict[str, Any]]:
+    """The cross product of the sweep's values, first key slowest: ``[{key: value, ...}, ...]``
+    (one empty variant when nothing is swept)."""
+    names = list(sweep)
+    return [dict(zip(names, combo)) for combo in itertools.product(*(sweep[n] for n in names))]
+
+
+def variant_tag(values: Mapping[str, Any]) -> str:
+    """A short readable name of a variant for file names: ``o_threshold=0.05,grid=64``."""
+    return ",".join(f"{k.rpartition('.')[2]}={v}" for k, v in values.items())

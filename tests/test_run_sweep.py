@@ -1,0 +1,156 @@
+"""Sweeps as runs (benchmark.run.sweep through the command line): one row per sweep point with its
+values in ``sweep.<key>`` columns, shared fits for extraction-only sweeps, oracle ceiling rows,
+resume after a kill, typed keys and values, config files and the shipped recipes.
+
+Runs use the test-only methods of tests/fake_methods.py (marching cubes on a fitted or exact SDF).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from benchmark.run.cli import EXIT_REFUSED, build_parser, configure, main, recipe_names
+from benchmark.run.config import resolve
+from benchmark.run.sweep import variants
+from tests.fake_methods import PLUGIN
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def neural_args(out: Path, cache: Path, *extra: str) -> list[str]:
+    return ["--methods", "test_sdf", "--mode", "neural", "--budget", "tiny", "--grid", "24", "--eval-points", "5000",
+            "--limit", "1", "--out", str(out), "--cache-dir", str(cache), "--plugin", PLUGIN, "--quiet",
+            "--threads", "1", *extra]
+
+
+def results(out: Path) -> pd.DataFrame:
+    return pd.read_csv(out / "results.csv")
+
+
+def test_variants_are_the_cross_product_first_key_slowest():
+    assert variants({"grid": (32, 64), "sals.normals": (True, False)}) == [
+        {"grid": 32, "sals.normals": True}, {"grid": 32, "sals.normals": False},
+        {"grid": 64, "sals.normals": True}, {"grid": 64, "sals.normals": False}]
+    assert variants({}) == [{}]
+
+
+def test_a_2x2_extraction_sweep_gives_four_rows_with_sweep_columns_fits_once_and_reports_it(fakes, tmp_path):
+    out = tmp_path / "run"
+    code = main(neural_args(out, tmp_path / "cache", "--sweep", "test_sdf.level=0,0.01", "--sweep", "grid=20,24",
+                            "--no-ceiling"))
+    assert code == 0
+    df = results(out)
+    assert len(df) == 4 and (df.status == "ok").all()
+    assert list(zip(df["sweep.test_sdf.level"], df["sweep.grid"])) == [(0.0, 20), (0.0, 24), (0.01, 20), (0.01, 24)]
+    assert list(df["grid"]) == [20, 24, 20, 24]
+    assert df["fitted"].sum() == 1  # level and grid change the extraction only: one fit serves all four
+    assert df["fit_loss"].nunique() == 1
+    assert len(set(df["mesh_path"])) == 4  # every point keeps its own mesh
+    assert (out / "sweep.md").is_file() and "Sweep of test\\_sdf.level" in (out / "sweep.md").read_text()
+    html = (out / "report.html").read_text()
+    assert "Sweep of grid" in html and "<img" in html
+    record = json.loads((out / "config.json").read_text())
+    assert record["config"]["sweep"] == {"test_sdf.level": [0.0, 0.01], "grid": [20, 24]}
+
+
+def test_a_budget_sweep_fits_each_value_and_adds_one_oracle_ceiling(fakes, tmp_path):
+    out = tmp_path / "run"
+    assert main(neural_args(out, tmp_path / "cache", "--sweep", "budget.iterations=20,40")) == 0
+    df = results(out)
+    neural, oracle = df[df["mode"] == "neural"], df[df["mode"] == "oracle"]
+    assert list(neural["sweep.budget.iterations"]) == [20, 40] and neural["fitted"].sum() == 2
+    assert neural["fit_loss"].nunique() == 2
+    # the budget does not apply to the exact field: one ceiling job, its sweep value empty
+    assert len(oracle) == 1 and oracle["sweep.budget.iterations"].isna().all() and oracle["fitted"].sum() == 0
+    info = [json.loads(r[0]) for r in sqlite3.connect(out / "results.db").execute(
+        "SELECT info FROM jobs WHERE mode = 'neural' ORDER BY rowid")]
+    assert [i["fit_steps"] for i in info] == [20, 40]
+
+
+def test_budget_params_override_the_budget_and_are_recorded(fakes, tmp_path):
+    out = tmp_path / "run"
+    assert main(neural_args(out, tmp_path / "cache", "--budget-param", "iterations=30")) == 0
+    record = json.loads((out / "config.json").read_text())
+    assert record["config"]["budget_params"] == {"iterations": 30}
+    assert record["resolved"]["budget"]["iterations"] == 30
+    info = json.loads(sqlite3.connect(out / "results.db").execute("SELECT info FROM jobs").fetchone()[0])
+    assert info["fit_steps"] == 30
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--sweep", "test_sdf.levle=0,0.01"], "unknown key 'test_sdf.levle'; known keys: grid, eval_points, budget"),
+    (["--sweep", "test_sdf.level=0,0.5"], "test_sdf.level='0.5': expected float in (-0.1, 0.1)"),
+    (["--sweep", "grid=32,32"], "values must not repeat"),
+    (["--sweep", "grid"], "use KEY=V1,V2"),
+    (["--sweep", "budget.iterations=1,2", "--mode", "oracle"], "oracle mode fits nothing"),
+    (["--sweep", "seed=0,1", "--seed", "3"], "both give the seeds"),
+    (["--budget-param", "iters=3"], "no setting 'iters'"),
+])
+def test_bad_sweeps_are_one_line_naming_the_key(fakes, tmp_path, capsys, args, message):
+    out = tmp_path / "run"
+    assert main(neural_args(out, tmp_path / "cache", *args)) == EXIT_REFUSED
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and message in err, err
+    assert not out.exists()
+
+
+def test_a_sweep_from_a_config_file_is_the_same_run_as_from_the_command_line(fakes, tmp_path):
+    out, cache = tmp_path / "run", tmp_path / "cache"
+    assert main(neural_args(out, cache, "--sweep", "test_sdf.level=0,0.01", "--no-ceiling")) == 0
+    toml = tmp_path / "sweep.toml"
+    toml.write_text('ceiling = false\n[sweep]\n"test_sdf.level" = [0.0, 0.01]\n')
+    # the same protocol: the run directory accepts it and has nothing left to do
+    assert main(neural_args(out, cache, "--config", str(toml))) == 0
+    assert len(results(out)) == 2
+
+
+@pytest.mark.parametrize("name", recipe_names())
+def test_every_shipped_recipe_resolves_against_the_registry(name, tmp_path):
+    args = build_parser().parse_args(["--recipe", name, "--out", str(tmp_path / "r")])
+    plan = resolve(configure(args, tmp_path / "r"))
+    assert plan.sweep and len(plan.variants) >= 2 * len(variants(plan.sweep))  # with the oracle ceiling
+    assert {"normals", "o-threshold", "samples", "grid", "faces"} <= set(recipe_names())
+
+
+def test_a_killed_sweep_resumes_to_the_uninterrupted_table(tmp_path):
+    env = {**os.environ, "SALSBENCH_CACHE": str(tmp_path / "cache")}
+    args = ["--methods", "test_sdf", "test_occ", "--mode", "oracle", "--eval-points", "5000", "--limit", "2",
+            "--sweep", "grid=20,24,28", "--sweep", "test_sdf.level=0,0.01", "--no-cache", "--plugin", PLUGIN,
+            "--quiet"]
+    killed = tmp_path / "killed"
+    proc = subprocess.Popen([sys.executable, "run_benchmark.py", *args, "--out", str(killed)], cwd=REPO,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+    db = killed / "results.db"
+    deadline = time.monotonic() + 180
+    while time.monotonic() < deadline and proc.poll() is None:
+        try:
+            with sqlite3.connect(db, timeout=1) as con:
+                if con.execute("SELECT count(*) FROM jobs WHERE status='ok'").fetchone()[0] >= 2:
+                    break
+        except sqlite3.Error:
+            pass
+        time.sleep(0.02)
+    assert proc.poll() is None, f"run ended before it could be killed: {proc.stderr.read().decode()[-500:]}"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=30)
+    resumed = subprocess.run([sys.executable, "run_benchmark.py", "--resume", "--out", str(killed)], cwd=REPO,
+                             capture_output=True, text=True, timeout=600, env=env)
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    straight = tmp_path / "straight"
+    done = subprocess.run([sys.executable, "run_benchmark.py", *args, "--out", str(straight)], cwd=REPO,
+                          capture_output=True, text=True, timeout=600, env=env)
+    assert done.returncode == 0, done.stderr[-2000:]
+    columns = ["shape", "method", "sweep.grid", "sweep.test_sdf.level", "status", "cd", "n_faces"]
+    a, b = results(killed), results(straight)
+    assert len(a) == 2 * (3 + 3 * 2)  # per shape: test_occ at 3 grids, test_sdf at 3 grids x 2 levels
+    pd.testing.assert_frame_equal(a[columns], b[columns])
