@@ -3,7 +3,8 @@
 Public API
 ----------
 write_reports(results, floor, context, out_dir, meshes_dir=None) -> {name: Path}
-    summary.md, summary.tex, statistics.csv, timing.csv, timing.md and report.html in ``out_dir``.
+    summary.md, summary.tex, statistics.csv, timing.csv, timing.md and report.html in ``out_dir``;
+    for a sweep run (``context['sweep']``) also sweep.md, sweep.tex and sweep.csv.
 compare_runs(runs, out_dir) -> {name: Path}
     The same files for several runs side by side; ``runs`` is a list of dicts with keys name,
     results, floor, context, meshes_dir.
@@ -16,8 +17,8 @@ A bad frame or context raises ValueError with a one-line message.
 Modules: ``table`` (table model, Markdown/LaTeX writers), ``frames`` (input checks), ``protocol``
 (context, preset text), ``style`` (method order and colours), ``statistics`` (per-method
 statistics and their table), ``significance`` (bootstrap intervals, paired tests, the tie rule),
-``summary`` (the run's tables, summary.md/.tex), ``timing``, ``compare`` (several runs), ``plots``,
-``render`` (thumbnails), ``html`` (report.html).
+``summary`` (the run's tables, summary.md/.tex), ``sweep`` (a sweep run's tables and plots),
+``timing``, ``compare`` (several runs), ``plots``, ``render`` (thumbnails), ``html`` (report.html).
 """
 
 from __future__ import annotations
@@ -27,9 +28,12 @@ from pathlib import Path
 import pandas as pd
 
 from reports.compare import build_comparison, write_comparison
+from reports.frames import check_results
 from reports.html import GALLERY_LIMIT, write_comparison_html, write_html
+from reports.protocol import check_context
 from reports.render import render_mesh
 from reports.summary import build_summary, write_summary
+from reports.sweep import build_sweep, run_mode_results, sweep_html, write_sweep
 from reports.timing import write_timing
 
 __all__ = ["write_reports", "compare_runs", "render_mesh"]
@@ -43,16 +47,22 @@ def write_reports(results: pd.DataFrame, floor: pd.DataFrame | None, context: di
     Tables first (cheap), then report.html, which renders thumbnails from
     ``meshes_dir/<shape>/gt.ply`` and ``<method>.ply`` for the first ``gallery_limit`` shapes.
     ``checkpoints`` (one row per checkpoint of a fit: method, shape, seed, fraction,
-    fit_elapsed_s, metrics) adds the anytime curves to the report.
+    fit_elapsed_s, metrics) adds the anytime curves to the report. A sweep run's tables and plots
+    (:mod:`reports.sweep`) come first; the ordinary tables get only the jobs of the run's mode
+    (a neural sweep's oracle ceiling jobs are left out of them).
     """
     out_dir = Path(out_dir)
-    summary = build_summary(results, floor, context)
+    context, results = check_context(context), check_results(results)
+    sweep = build_sweep(results, context)
+    summary = build_summary(run_mode_results(results, context), floor, context)
     paths = write_summary(summary, context, out_dir)
+    paths.update(write_sweep(sweep, context, out_dir) if sweep is not None else {})
     timing_paths, timing = write_timing(summary.results, context, out_dir)
     paths.update(timing_paths)
     paths["report.html"] = write_html(out_dir / "report.html", summary, timing, context,
                                       Path(meshes_dir) if meshes_dir is not None else None,
-                                      gallery_limit=gallery_limit, checkpoints=checkpoints)
+                                      gallery_limit=gallery_limit, checkpoints=checkpoints,
+                                      sweep_html=sweep_html(sweep) if sweep is not None else "")
     return paths
 
 

@@ -1,11 +1,12 @@
 """report.html: one self-contained page (inline CSS, images as base64 data URIs, no script, no network).
 
-Sections: summary (the best mean per metric with the methods tied with it, the mean table with its
-intervals, counts and what each mean is over), a gallery (per shape: GT and every method rendered headless with
-:mod:`reports.render`, plus each method coloured by its distance to the GT surface, with the colour
-scale), per-shape plots (:mod:`reports.plots`) and tables, validity, timing, failed jobs with their
-error text, and the protocol with the run context. Every text from the run is escaped with
-:func:`html.escape`; the stylesheet is ``report.css`` beside this module.
+Sections: a sweep run's sweep first (:mod:`reports.sweep`), summary (the best mean per metric with
+the methods tied with it, the mean table with its intervals, counts and what each mean is over), a
+gallery (per shape: GT and every method rendered headless with :mod:`reports.render`, plus each
+method coloured by its distance to the GT surface, with the colour scale), per-shape plots
+(:mod:`reports.plots`) and tables, validity, timing, failed jobs with their error text, and the
+protocol with the run context. Every text from the run is escaped with :func:`html.escape`; the
+stylesheet is ``report.css`` beside this module.
 """
 
 from __future__ import annotations
@@ -272,8 +273,9 @@ def _page(title: str, subtitle: str, chips: list[tuple[str, str]], sections: lis
 
 def write_html(path: Path, summary: Summary, timing: pd.DataFrame, context: dict, meshes_dir: Path | None = None,
                *, gallery_limit: int = GALLERY_LIMIT, thumb_size: int = 256,
-               checkpoints: pd.DataFrame | None = None) -> Path:
-    """Write report.html for one run (see the module docstring); returns ``path``."""
+               checkpoints: pd.DataFrame | None = None, sweep_html: str = "") -> Path:
+    """Write report.html for one run (see the module docstring); returns ``path``. ``sweep_html``
+    (:func:`reports.sweep.sweep_html`), when given, is the first section."""
     results = summary.results
     colors = method_colors(summary.methods)
     n_jobs, n_failed = len(results), int((results["status"] != "ok").sum())
@@ -294,6 +296,7 @@ def write_html(path: Path, summary: Summary, timing: pd.DataFrame, context: dict
     context_html = ('<details><summary>Run context</summary><pre>'
                     + esc(dumps(context, indent=2)) + "</pre></details>")
     sections = [
+        *([("sweep", "Sweep", sweep_html)] if sweep_html else []),
         ("summary", "Summary", summary_html),
         ("gallery", "Gallery", gallery),
         ("per-shape", "Per shape", per_shape + shape_tables),

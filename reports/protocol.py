@@ -14,6 +14,8 @@ metric_preset  a key of ``benchmark.metrics.PRESETS``
 eval_points the effective number of metric samples per mesh (int)
 device      e.g. 'cpu (AMD EPYC 7B13)'; cpu_model, gpu: str or None
 git_commit  str or None
+sweep       optional: {key: [values in the user's order]} of a sweep run (:mod:`reports.sweep`);
+            empty or missing when the run is not a sweep
 ========== =====================================================================
 
 The metric protocol (which metrics, their multipliers, the protocol text) comes from the preset
@@ -53,6 +55,11 @@ def headline_metrics(context: dict, columns) -> list:
     return [m for m in PRESETS[context["metric_preset"]].headline_metrics() if m.column in columns]
 
 
+def sweep_spec(context: dict) -> dict[str, list]:
+    """The context's sweep {key: values}, keys without values dropped; {} when it is not a sweep."""
+    return {str(k): list(v) for k, v in (context.get("sweep") or {}).items() if len(v)}
+
+
 def device_text(context: dict) -> str:
     """The device, with the GPU and CPU model when the device text does not already name them."""
     text = str(context["device"] or "device not recorded")
@@ -71,6 +78,8 @@ def protocol_items(context: dict) -> list[tuple[str, str]]:
             " (" + ", ".join(f"{k} {v}" for k, v in values.items()) + ")" if values else "")))
     grid = int(context["grid"])
     items += [("grid", f"{grid}³ points on [-1, 1]³"), ("seeds", ", ".join(str(s) for s in context["seeds"]))]
+    if sweep_spec(context):
+        items.append(("sweep", " × ".join(f"{k} ({', '.join(map(str, v))})" for k, v in sweep_spec(context).items())))
     return items + PRESETS[context["metric_preset"]].describe_items(context["eval_points"])
 
 
