@@ -63,6 +63,21 @@ def record_result(db: ResultsDB, run_dir: RunDirectory, result: TaskResult, firs
     }, result.metrics, result.timings, sweep=spec.sweep, fitted=int(bool(result.info.get("fitted"))))
 
 
+def _schedule(plan: Plan, todo: list):
+    """Sort key of the tasks: shape by shape, each shape's floor first; a job whose fit an earlier
+    job already does (a sweep of extraction settings) goes after every fitting job, so parallel
+    workers do not wait on each other's fits but find the weights in the cache."""
+    order = {s: i for i, s in enumerate(plan.shapes)}
+    seen: set[str] = set()
+    follower: dict[str, bool] = {}
+    for t in todo:
+        fit = t.fit_identity() if t.kind == "job" else None
+        follower[t.key] = fit is not None and fit in seen
+        if fit is not None:
+            seen.add(fit)
+    return lambda t: (follower[t.key], order[t.shape], 0 if t.kind == "floor" else 1)
+
+
 def run(plan: Plan, run_dir: RunDirectory, record: dict, executor=None) -> RunOutcome:
     """Run the plan's unfinished tasks into ``run_dir`` (which the caller has locked)."""
     from benchmark.run.display import Display
@@ -77,8 +92,7 @@ def run(plan: Plan, run_dir: RunDirectory, record: dict, executor=None) -> RunOu
     done_jobs, done_floors = db.ok_hashes("jobs"), db.ok_hashes("floor")
     attempts = db.attempts()
     todo = [f for f in floors if f.key not in done_floors] + [j for j in jobs if j.key not in done_jobs]
-    order = {s: i for i, s in enumerate(plan.shapes)}  # each shape's floor first, shape by shape
-    todo.sort(key=lambda t: (order[t.shape], 0 if t.kind == "floor" else 1))
+    todo.sort(key=_schedule(plan, todo))
     total = len(floors) + len(jobs)
     skipped = total - len(todo)
     print(f"salsbench: {len(jobs)} jobs + {len(floors)} floor tasks, {skipped} already done, run dir {run_dir.path}",

@@ -107,6 +107,15 @@ class JobSpec(TaskSpec):
             ident["budget_params"] = dict(sorted(self.budget_params.items()))
         return ident
 
+    def fit_identity(self) -> str | None:
+        """What the job's fit depends on (the weights cache's key without the code): jobs of a sweep
+        that differ only in extraction settings share it. None for an oracle job."""
+        if self.mode != "neural":
+            return None
+        return digest({"dataset": self.dataset, "dataset_options": identity_options(self.dataset_options),
+                       "shape": self.shape, "method": self.method, "budget": self.budget,
+                       "budget_params": self.budget_params, "seed": self.seed})
+
     @property
     def uses_fitting(self) -> bool:
         """True when the job trains a network (asks an executor for a GPU when there is one)."""
