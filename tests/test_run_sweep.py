@@ -154,3 +154,18 @@ def test_a_killed_sweep_resumes_to_the_uninterrupted_table(tmp_path):
     a, b = results(killed), results(straight)
     assert len(a) == 2 * (3 + 3 * 2)  # per shape: test_occ at 3 grids, test_sdf at 3 grids x 2 levels
     pd.testing.assert_frame_equal(a[columns], b[columns])
+
+
+def test_jobs_that_share_a_fit_are_scheduled_after_every_fitting_job(fakes, tmp_path):
+    from benchmark.run.driver import _schedule
+    from benchmark.run.tasks import build_tasks
+
+    args = build_parser().parse_args(neural_args(tmp_path / "r", tmp_path / "cache", "--limit", "2", "--sweep",
+                                                 "test_sdf.level=0,0.01", "--no-ceiling"))
+    plan = resolve(configure(args, tmp_path / "r"))
+    floors, jobs = build_tasks(plan)
+    todo = sorted(floors + jobs, key=_schedule(plan, floors + jobs))
+    kinds = [(t.kind, t.shape[:11], t.params.get("level") if t.kind == "job" else None) for t in todo]
+    assert kinds == [("floor", "builtin_000", None), ("job", "builtin_000", 0.0),
+                     ("floor", "builtin_001", None), ("job", "builtin_001", 0.0),
+                     ("job", "builtin_000", 0.01), ("job", "builtin_001", 0.01)]
