@@ -60,8 +60,7 @@ AGGREGATION = ("Over successful jobs (shapes × seeds); failed jobs are counted,
                "predictions and predictions without sharp-edge points).")
 TIE = "†"
 CI_LEGEND = (f"[low, high]: {CONFIDENCE:.0%} percentile-bootstrap confidence interval of the mean over shapes (seeds "
-             f"averaged per shape first; {N_RESAMPLES:,} resamples of the shapes, seed {SEED}); p-values in "
-             "statistics.csv.")
+             f"averaged per shape first; {N_RESAMPLES:,} resamples of the shapes, seed {SEED}).")
 
 
 @dataclass
@@ -162,31 +161,40 @@ def method_statistics(results: pd.DataFrame, floor: pd.DataFrame | None, metrics
     return Statistics(values, counts, per_shape)
 
 
-def tests_against_best(stats: Statistics, metrics: list, stat: str) -> Tests:
+def tests_against_best(stats: Statistics, metrics: list, stat: str, *, within=None, reference=None) -> Tests:
     """The method rows of ``stats.values[stat]`` against each column's best row, paired by shape
-    (:func:`reports.significance.against_best`, :func:`reports.significance.tied_with_best`)."""
+    (:func:`reports.significance.against_best`, :func:`reports.significance.tied_with_best`).
+
+    ``within``: a group label per row (the sweep tables: a swept value), rows compared only with
+    their group's (default: one group); ``reference``: a flag per row, rows never compared nor bold
+    (default: the :data:`FLOOR_LABEL` rows)."""
     center = stats.values[stat]
-    is_method = np.array([_label(k)[-1] != FLOOR_LABEL for k in center.index])
+    if reference is None:
+        reference = [_label(k)[-1] == FLOOR_LABEL for k in center.index]
+    is_method = ~np.asarray(reference, dtype=bool)
+    groups = pd.factorize(np.zeros(len(center)) if within is None else np.asarray(within))[0]
     columns = [m.column for m in metrics]
     tests = Tests(*(pd.DataFrame(fill, index=center.index, columns=columns) for fill in (np.nan, 0, False, False)))
-    for j, m in enumerate(metrics):
-        c = center[m.column].to_numpy(dtype=float)
-        rows = np.flatnonzero(is_method & np.isfinite(c))
-        if not len(rows):
-            continue
-        matrix = stats.per_shape[m.column].reindex(center.index).to_numpy(dtype=float)[rows]
-        best = int(np.argmin(c[rows]) if m.lower_is_better else np.argmax(c[rows]))
-        p, pairs, worse = against_best(matrix, best, m.lower_is_better)
-        bold, tied = tied_with_best(c[rows], worse, m.lower_is_better)
-        for target, value in ((tests.p, p), (tests.pairs, pairs), (tests.bold, bold), (tests.tied, tied)):
-            target.iloc[rows, j] = value
+    for g in range(groups.max(initial=-1) + 1):
+        for j, m in enumerate(metrics):
+            c = center[m.column].to_numpy(dtype=float)
+            rows = np.flatnonzero(is_method & (groups == g) & np.isfinite(c))
+            if not len(rows):
+                continue
+            matrix = stats.per_shape[m.column].reindex(center.index).to_numpy(dtype=float)[rows]
+            best = int(np.argmin(c[rows]) if m.lower_is_better else np.argmax(c[rows]))
+            p, pairs, worse = against_best(matrix, best, m.lower_is_better)
+            bold, tied = tied_with_best(c[rows], worse, m.lower_is_better)
+            for target, value in ((tests.p, p), (tests.pairs, pairs), (tests.bold, bold), (tests.tied, tied)):
+                target.iloc[rows, j] = value
     return tests
 
 
-def legend(stat: str, tests: Tests, metrics: list) -> str:
+def legend(stat: str, tests: Tests, metrics: list, *, scope: str = "of a column", csv: str = "statistics.csv") -> str:
     """What bold, † (and for the mean the interval) mean in a table of ``stat``, and which methods
-    tie only because they share fewer than :data:`MIN_PAIRS` shapes with the best."""
-    text = (f"Bold: the best {stat} of a column (ties at the printed precision all best) and every method not "
+    tie only because they share fewer than :data:`MIN_PAIRS` shapes with the best (named by their
+    row labels, joined by ' / '). ``scope`` says where the best is taken, ``csv`` where the p-values are."""
+    text = (f"Bold: the best {stat} {scope} (ties at the printed precision all best) and every method not "
             f"significantly worse than it: two-sided paired Wilcoxon signed-rank test against the best over the "
             f"shapes both have (seeds averaged per shape), worse: p < {ALPHA:g} with the paired differences favouring "
             f"the best. "
@@ -198,7 +206,7 @@ def legend(stat: str, tests: Tests, metrics: list) -> str:
                  for k in few.index[few.any(axis=1)]]
         text += (f" Fewer than {MIN_PAIRS} shapes in common with the best, where no test can reach p < {ALPHA:g}, so "
                  f"tied by construction: {'; '.join(items)}.")
-    return f"{text} {CI_LEGEND}" if stat == "mean" else text
+    return f"{text} {CI_LEGEND} p-values in {csv}." if stat == "mean" else text
 
 
 def statistics_frame(stats: Statistics, metrics: list, lead: tuple[str, ...] = ("method",)) -> pd.DataFrame:
@@ -222,9 +230,13 @@ def _count_text(value) -> str:
     return DASH if value is None or not np.isfinite(value) else str(int(value))
 
 
-def _interval(stats: Statistics, column: str, i: int) -> str:
-    low, high = stats.values["ci_low"][column].iloc[i], stats.values["ci_high"][column].iloc[i]
+def interval_text(low, high) -> str:
+    """A mean's interval as its cell's detail: '[4.100, 4.930]'; empty without both bounds."""
     return f"[{fmt(low)}, {fmt(high)}]" if np.isfinite(low) and np.isfinite(high) else ""
+
+
+def _interval(stats: Statistics, column: str, i: int) -> str:
+    return interval_text(stats.values["ci_low"][column].iloc[i], stats.values["ci_high"][column].iloc[i])
 
 
 def statistic_table(stats: Statistics, metrics: list, stat: str, *, key: str, caption: str,

@@ -12,6 +12,14 @@ Sweep table
     non-manifold edges, how many fits ran (``fitted``; a job served from the cache is not counted)
     and their mean seconds. A second table holds the medians. With several keys, a key's table is the
     marginal (it pools the other keys' values) and one more table has a row per combination.
+Noise
+    As in the summary tables (:mod:`reports.statistics`, :mod:`reports.significance`), over the
+    shapes (each shape's seeds averaged first): every mean of a headline metric carries its 95%
+    bootstrap interval, ``4.500 [4.100, 4.930]``, and bold compares the methods *within one value*
+    (one combination in the combinations table; "which method wins at this value", never across
+    values): the best of a metric column among that value's method rows and every method not
+    significantly worse (paired Wilcoxon over shapes; such ties marked †, and under 6 paired shapes
+    tied by construction, named in the caption). The median table tests against the best median.
 Broadcast rule
     A job whose ``sweep.<key>`` is null does not depend on the key (a method parameter of another
     method, a budget for an oracle job): it is the same job for every value, so it counts in every
@@ -24,14 +32,15 @@ Ceiling rows
     (:func:`run_mode_results`).
 
 Files: sweep.md, sweep.tex (booktabs) and sweep.csv (tidy: one row per key × value × series ×
-quantity with mean, median and counts, for scripts); the report's sweep section (:func:`sweep_html`).
+quantity with mean, its interval, p against the value's best mean, median and counts, for
+scripts); the report's sweep section (:func:`sweep_html`).
 """
 
 from __future__ import annotations
 
 import math
 import numbers
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import matplotlib
@@ -44,8 +53,10 @@ from reports.frames import as_bool, check_results, numeric
 from reports.html import esc, notes_html, plot_html, table_html
 from reports.plots import STYLE, _svg, plot_label
 from reports.protocol import check_context, headline_metrics, protocol_caption, report_title, sweep_spec
+from reports.significance import mean_intervals
+from reports.statistics import TIE, Statistics, Tests, interval_text, legend, tests_against_best
 from reports.style import method_colors, method_order
-from reports.table import Cell, Table, best_flags, fmt, md_escape, metric_header, metric_tex_header
+from reports.table import Cell, Table, fmt, md_escape, metric_header, metric_tex_header
 from reports.table import table_latex, table_markdown_section, tex_escape
 
 #: Result column of a swept key: ``sweep.<key>``.
@@ -74,8 +85,11 @@ class Sweep:
     series : display order: methods, then the ceiling series ('sals (oracle)').
     method_of : {series: method}; ceilings : the ceiling series.
     broadcast : {key: series that do not depend on it}.
-    stats : {key or :data:`COMBINED`: :func:`sweep_stats` frame in row order}.
+    stats : {key or :data:`COMBINED`: :func:`sweep_stats` frame in row order, plus ('p_vs_best',
+        metric): the mean's p against the best mean at the row's value}.
     tables : {name: Table}; mean table 'sweep-<key>', medians 'sweep-<key>-median'.
+    tests : {key or :data:`COMBINED`: {'mean'|'median': Tests}}, rows as in ``stats``, labelled
+        (value text(s)..., series); the methods compared within each value (:func:`value_tests`).
     """
 
     spec: dict[str, list]
@@ -86,6 +100,7 @@ class Sweep:
     broadcast: dict[str, list[str]]
     stats: dict[str, pd.DataFrame]
     tables: dict[str, Table]
+    tests: dict[str, dict[str, Tests]] = field(default_factory=dict)
 
 
 def axis_scale(values) -> str:
@@ -161,10 +176,13 @@ def fitted_jobs(jobs: pd.DataFrame) -> pd.Series:
     return numeric(jobs, FIT).notna() & ~cache.astype(str).str.contains("weights", na=False)
 
 
-def sweep_stats(jobs: pd.DataFrame, by: list[str], metrics: list) -> pd.DataFrame:
-    """Per group of the columns ``by``: the counts (``count``: jobs, failed, fits run) and the mean,
-    median and n (finite values) over successful jobs of each headline metric (table units), each
-    :data:`VALIDITY` column and the seconds of the fits that ran. Columns: (statistic, quantity)."""
+def sweep_stats(jobs: pd.DataFrame, by: list[str], metrics: list) -> tuple[pd.DataFrame, dict[str, pd.DataFrame]]:
+    """(stats, per_shape). stats, per group of the columns ``by``: the counts (``count``: jobs,
+    failed, fits run) and the mean, median and n (finite values) over successful jobs of each
+    headline metric (table units), each :data:`VALIDITY` column and the seconds of the fits that
+    ran, and the headline metrics' ci_low, ci_high (bootstrap interval of the mean over shapes);
+    columns (statistic, quantity). per_shape: {metric column: groups x shapes}, the mean over each
+    shape's successful seeds (NaN skipped)."""
     ok = jobs["status"] == "ok"
     fit_s = numeric(jobs, FIT)
     fitted = ok & fitted_jobs(jobs) & fit_s.notna()
@@ -174,8 +192,14 @@ def sweep_stats(jobs: pd.DataFrame, by: list[str], metrics: list) -> pd.DataFram
     keys = [jobs[c] for c in by]
     grouped = values.groupby(keys, sort=False)
     counts = pd.DataFrame({"jobs": 1, "failed": ~ok, "fits": fitted}).groupby(keys, sort=False).sum()
-    return pd.concat({"count": counts, "mean": grouped.mean(), "median": grouped.median(), "n": grouped.count()},
-                     axis=1)
+    columns = [m.column for m in metrics]
+    shapes = values[columns].groupby([*keys, jobs["shape"].rename("@shape")], sort=False).mean()
+    per_shape = {c: shapes[c].unstack("@shape").reindex(counts.index) for c in columns}
+    bounds = {c: mean_intervals(per_shape[c]) for c in columns}
+    ci = {name: pd.DataFrame({c: bounds[c][:, k] for c in columns}, index=counts.index)
+          for k, name in enumerate(("ci_low", "ci_high"))}
+    return pd.concat({"count": counts, "mean": grouped.mean(), "median": grouped.median(), "n": grouped.count(),
+                      **ci}, axis=1), per_shape
 
 
 def _in_order(stats: pd.DataFrame, levels: list) -> pd.DataFrame:
@@ -191,10 +215,25 @@ def _lead(stats: pd.DataFrame, keys: list[str], spec: dict) -> list[pd.Series]:
     return texts + [index[SERIES]]
 
 
+def value_tests(sweep: Sweep, stats: pd.DataFrame, per_shape: dict, keys: list[str]) -> dict[str, Tests]:
+    """{'mean'|'median': Tests} of a group's ordered ``stats``: at each value (combination of
+    values) its method rows against the best of each metric column there, paired by shape
+    (:func:`reports.statistics.tests_against_best`); the ceiling rows are references. Rows
+    labelled (value text(s)..., series), as the tables and captions name them."""
+    labels = pd.MultiIndex.from_arrays(_lead(stats, keys, sweep.spec))
+    columns = [m.column for m in sweep.metrics]
+    frames = Statistics({s: stats[s][columns].set_axis(labels) for s in TITLES}, stats["count"].set_axis(labels),
+                        {c: per_shape[c].reindex(stats.index).set_axis(labels) for c in columns})
+    within = stats.index.droplevel(SERIES).factorize()[0]
+    reference = stats.index.get_level_values(SERIES).isin(sweep.ceilings)
+    return {s: tests_against_best(frames, sweep.metrics, s, within=within, reference=reference) for s in TITLES}
+
+
 def sweep_table(sweep: Sweep, group: str, stat: str, caption: str) -> Table:
     """The table of one group (a key, or :data:`COMBINED`) and statistic ('mean' with the validity
-    columns, or 'median'): a row per (value(s), series); the best of each metric column over the
-    method rows in bold, the ceiling rows references."""
+    columns, or 'median'): a row per (value(s), series); in bold per value the best of each metric
+    column over its method rows and the methods tied with it (:func:`value_tests`, tied ones marked
+    †), the means with their intervals, the ceiling rows references."""
     keys = list(sweep.spec) if group == COMBINED else [group]
     stats = sweep.stats[group]
     extra = [c.label for c in schema_columns("validity") if c.name in VALIDITY] + ["fits", "fit s"]
@@ -206,18 +245,21 @@ def sweep_table(sweep: Sweep, group: str, stat: str, caption: str) -> Table:
     table = Table(f"sweep-{group}" + ("" if stat == "mean" else f"-{stat}"), f"Sweep of {what}: {TITLES[stat]}",
                   caption, headers, tex_headers, ["l"] * (len(keys) + 1) + ["r"] * (len(headers) - len(keys) - 1))
     reference = stats.index.get_level_values(SERIES).isin(sweep.ceilings)
-    values = stats[stat][[m.column for m in sweep.metrics]]
-    bold = pd.DataFrame({m.column: best_flags(values[m.column].where(~reference).tolist(), m.lower_is_better)
-                         for m in sweep.metrics}, index=stats.index)
+    columns = [m.column for m in sweep.metrics]
+    tests = sweep.tests[group][stat]
+    values = stats[stat][columns].map(fmt) + np.where(tests.tied.to_numpy(dtype=bool), TIE, "")
     counts = stats["count"][["jobs", "failed"]].astype(int).astype(str)
     validity = stats["mean"][list(VALIDITY) + [FIT]].map(lambda v: fmt(v, 1))
     validity.insert(3, "fits", stats["count"]["fits"].astype(int).astype(str))
-    texts = pd.concat([*(s.set_axis(stats.index) for s in _lead(stats, keys, sweep.spec)), counts, values.map(fmt),
+    texts = pd.concat([*(s.set_axis(stats.index) for s in _lead(stats, keys, sweep.spec)), counts, values,
                        *([validity] if extra else [])], axis=1)
-    flags = pd.concat([pd.DataFrame(False, index=stats.index, columns=range(len(keys) + 3)), bold,
-                       pd.DataFrame(False, index=stats.index, columns=range(len(extra)))], axis=1)
-    for row, row_bold, ref in zip(texts.to_numpy(), flags.to_numpy(), reference):
-        table.add([Cell(str(t), bool(b)) for t, b in zip(row, row_bold)], "floor" if ref else "method")
+    intervals = np.vectorize(interval_text, otypes=[object])(stats["ci_low"][columns], stats["ci_high"][columns])
+    width = ((0, 0), (len(keys) + 3, len(extra)))  # metric columns -> every column
+    flags = np.pad(tests.bold.to_numpy(dtype=bool), width)
+    details = np.pad(intervals if stat == "mean" else np.full_like(intervals, ""), width, constant_values="")
+    for row, row_bold, row_detail, ref in zip(texts.to_numpy(), flags, details, reference):
+        table.add([Cell(str(t), bool(b), detail=d) for t, b, d in zip(row, row_bold, row_detail)],
+                  "floor" if ref else "method")
     return table
 
 
@@ -226,14 +268,15 @@ def _names(series: list[str]) -> str:
 
 
 def sweep_note(sweep: Sweep, group: str, stat: str) -> str:
-    """What a sweep table shows: the key(s), the aggregation, the units, the broadcast series and
-    the ceiling rows (one paragraph)."""
+    """What a sweep table shows: the key(s), the aggregation, the units, the broadcast series, the
+    ceiling rows and what bold, † and the intervals mean (:func:`reports.statistics.legend`; one
+    paragraph)."""
     keys = list(sweep.spec) if group == COMBINED else [group]
     others = [k for k in sweep.spec if k not in keys]
     parts = [f"Rows: the values of {' × '.join(keys)} in the order given, a row per series; {stat} over the "
              "successful jobs (shapes × seeds)" + (f", pooled over every value of {', '.join(others)} (the "
                                                     "marginal)" if others else "") + ". Metrics in the summary "
-             "tables' units (the header's multiplier); best of each metric column over the methods in bold."]
+             "tables' units (the header's multiplier)."]
     if stat == "mean":
         parts.append("#F, boundary edges, non-manifold edges: means over successful jobs; fits: fits run "
                      "(jobs served from the cache not counted), fit s their mean seconds.")
@@ -243,6 +286,10 @@ def sweep_note(sweep: Sweep, group: str, stat: str) -> str:
         parts.append(f"Ceiling rows ({', '.join(sweep.ceilings)}; references, never bold): the same sweep in oracle "
                      "mode (exact field, no fit); the gap to the method is the fitting error, the ceiling the "
                      "extraction error.")
+    where = "combination of values" if group == COMBINED else f"value of {group}"
+    parts += [f"Bold compares the methods within one {where} (which method wins there), never across values.",
+              legend(stat, sweep.tests[group][stat], sweep.metrics, scope="of a metric column among them",
+                     csv="sweep.csv")]
     return " ".join(parts)
 
 
@@ -267,8 +314,11 @@ def build_sweep(results: pd.DataFrame, context: dict) -> Sweep | None:
     groups = {k: [k] for k in spec} | ({COMBINED: list(spec)} if len(spec) > 1 else {})
     for group, keys in groups.items():
         by = [POS + k for k in keys] + [SERIES]
-        sweep.stats[group] = _in_order(sweep_stats(expand(jobs, spec, keys), by, metrics),
-                                       [range(len(spec[k])) for k in keys] + [series])
+        stats, per_shape = sweep_stats(expand(jobs, spec, keys), by, metrics)
+        stats = _in_order(stats, [range(len(spec[k])) for k in keys] + [series])
+        sweep.tests[group] = value_tests(sweep, stats, per_shape, keys)
+        p = sweep.tests[group]["mean"].p.set_axis(stats.index)
+        sweep.stats[group] = pd.concat([stats, pd.concat({"p_vs_best": p}, axis=1)], axis=1)
     protocol = protocol_caption(context)
     for group in groups:
         for stat in TITLES:
@@ -282,12 +332,15 @@ def build_sweep(results: pd.DataFrame, context: dict) -> Sweep | None:
 def sweep_frame(sweep: Sweep) -> pd.DataFrame:
     """sweep.csv: one row per key × value × series × quantity (headline metrics in table units with
     their ``scale``, the validity means, fit seconds), with mean, median, n (finite values), n_jobs,
-    n_failed and whether the series is a ceiling or broadcast over the key."""
+    n_failed and whether the series is a ceiling or broadcast over the key; for the headline metrics
+    also ci_low, ci_high (the mean's interval over shapes) and p_vs_best (the paired Wilcoxon p
+    against the best mean at the value, as the table's bold; NaN for the best and the ceilings)."""
     scale = {m.column: m.scale for m in sweep.metrics}
     parts = []
     for key, values in sweep.spec.items():
         stats = sweep.stats[key]
-        long = stats[["mean", "median", "n"]].stack(level=1).rename_axis(["position", "series", "quantity"])
+        long = stats[["mean", "ci_low", "ci_high", "p_vs_best", "median", "n"]].stack(level=1).rename_axis(
+            ["position", "series", "quantity"])
         counts = stats["count"].rename(columns={"jobs": "n_jobs", "failed": "n_failed"}).rename_axis(
             ["position", "series"])
         long = long.reset_index().merge(counts.reset_index(), on=["position", "series"])
@@ -298,8 +351,8 @@ def sweep_frame(sweep: Sweep) -> pd.DataFrame:
     out = pd.concat(parts, ignore_index=True)
     out["scale"] = out["quantity"].map(scale).fillna(1.0)
     out[["n", "n_jobs", "n_failed"]] = out[["n", "n_jobs", "n_failed"]].astype(int)
-    return out[["key", "value", "series", "method", "ceiling", "broadcast", "quantity", "scale", "mean", "median",
-                "n", "n_jobs", "n_failed"]]
+    return out[["key", "value", "series", "method", "ceiling", "broadcast", "quantity", "scale", "mean", "ci_low",
+                "ci_high", "p_vs_best", "median", "n", "n_jobs", "n_failed"]]
 
 
 def sweep_markdown(sweep: Sweep, context: dict) -> str:

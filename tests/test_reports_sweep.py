@@ -7,6 +7,8 @@ key (NaN in ``sweep.sals.o_threshold``): CD 0.001, 0.003 -> 2.000 in both rows. 
 of sals: 0.1 -> 0.001, 0.002 (1.500); 0.5 -> 0.003, 0.005 (4.000). Boundary edges: 4 per job at
 0.5, 0 at 0.1. The cube sals job at 0.1 has its weights from the cache: 1 fit at 0.1, 2 at 0.5.
 So the ordinary summary, neural jobs only, has sals CD mean (2 + 4 + 6 + 10) / 4 = 5.500.
+Bold compares the methods within one value: bof is the best CD at both values and sals, sharing
+only 2 shapes with it (under 6, no test can reach p < 0.05), ties with it (bold, †).
 """
 
 from __future__ import annotations
@@ -60,7 +62,7 @@ def test_threshold_table_means_broadcast_and_ceiling(threshold):
     rows = rows_of(table)
     assert list(rows) == [(v, s) for v in ("0.1", "0.5") for s in ("sals", "bof", "sals (oracle)")]
     cd = {k: r["CD ×1e3 ↓"] for k, r in rows.items()}
-    assert (cd["0.1", "sals"], cd["0.5", "sals"]) == ("3.000", "8.000")
+    assert (cd["0.1", "sals"], cd["0.5", "sals"]) == ("3.000†", "8.000†")  # 2 shapes: tied with bof by construction
     assert (cd["0.1", "sals (oracle)"], cd["0.5", "sals (oracle)"]) == ("1.500", "4.000")
     assert rows["0.1", "bof"] == {**rows["0.5", "bof"], "sals.o_threshold": "0.1"}  # broadcast: same jobs, same numbers
     assert cd["0.1", "bof"] == "2.000"
@@ -71,7 +73,8 @@ def test_threshold_table_means_broadcast_and_ceiling(threshold):
     assert fits == ["1", "2", "0"]  # the cube's 0.1 weights came from the cache; oracle jobs fit nothing
     assert "bof does not depend on sals.o_threshold: the same jobs for each of its values." in table.caption
     assert "sals (oracle)" in table.caption and "Protocol:" in table.caption
-    assert rows_of(threshold.tables["sweep-sals.o_threshold-median"])["0.5", "sals"]["CD ×1e3 ↓"] == "8.000"
+    assert "tied by construction: 0.1 / sals (CD, ECD); 0.5 / sals (CD, ECD)." in table.caption
+    assert rows_of(threshold.tables["sweep-sals.o_threshold-median"])["0.5", "sals"]["CD ×1e3 ↓"] == "8.000†"
 
 
 def test_ordinary_tables_get_no_ceiling_rows(tmp_path):
@@ -105,11 +108,11 @@ def test_two_keys_marginals_and_combinations():
     assert {k[:2] for k in combos} == {("32", "True"), ("32", "False"), ("64", "True"), ("64", "False")}
     assert len(combos) == 8  # 4 combinations x (sals, bof)
     cd = "CD ×1e3 ↓"
-    assert (grid["32", "sals"][cd], grid["64", "sals"][cd]) == ("4.500", "2.500")  # pooled over normals
+    assert (grid["32", "sals"][cd], grid["64", "sals"][cd]) == ("4.500", "2.500")  # pooled over normals; best
     assert (grid["32", "sals"]["fits"], grid["64", "sals"]["fits"], grid["32", "sals"]["jobs"]) == ("4", "0", "4")
     assert (normals["True", "sals"][cd], normals["False", "sals"][cd]) == ("3.000", "4.000")  # pooled over grid
-    assert normals["True", "bof"][cd] == normals["False", "bof"][cd] == "4.500"  # broadcast
-    assert (combos["32", "False", "sals"][cd], combos["32", "False", "bof"][cd]) == ("5.000", "6.000")
+    assert normals["True", "bof"][cd] == normals["False", "bof"][cd] == "4.500†"  # broadcast; 2 shapes: a tie
+    assert (combos["32", "False", "sals"][cd], combos["32", "False", "bof"][cd]) == ("5.000", "6.000†")
     assert "pooled over every value of sals.normals (the marginal)" in sweep.tables["sweep-grid"].caption
     assert sweep_plot(sweep, "sals.normals").startswith(b"<?xml")
 
@@ -141,3 +144,72 @@ def test_write_reports_sweep_files_and_section_order(tmp_path):
         "methods": ["sals", "bof"], "shapes": SHAPES}, tmp_path / "plain")
     assert not any(name.startswith("sweep") for name in plain) and not list((tmp_path / "plain").glob("sweep*"))
     assert 'id="sweep"' not in plain["report.html"].read_text()
+
+
+def noisy_results() -> pd.DataFrame:
+    """20 shapes; bof (broadcast over the key) CD (raw) 0.002 + 0.0001 i on shape i. At 0.1, sals
+    differs from it by (-1)^i (i + 1) 1e-5: a mean 0.005 (x1e3) lower, signed ranks all but balanced
+    (p ~ 0.85), inside the noise. At 0.5, sals is 0.0005 (0.5 x1e3) worse on every shape. The oracle
+    ceiling, below both everywhere, is a reference."""
+    shapes = [f"shape{i:02d}" for i in range(20)]
+    rows = []
+    for i, shape in enumerate(shapes):
+        base = 0.002 + 1e-4 * i
+        rows += [job(shape, "bof", "neural", base, **{"sweep.sals.o_threshold": np.nan}),
+                 job(shape, "sals", "neural", base + (-1) ** i * (i + 1) * 1e-5, **{"sweep.sals.o_threshold": 0.1}),
+                 job(shape, "sals", "neural", base + 5e-4, **{"sweep.sals.o_threshold": 0.5})]
+        rows += [job(shape, "sals", "oracle", base / 2, **{"sweep.sals.o_threshold": v}) for v in (0.1, 0.5)]
+    return pd.DataFrame(rows), shapes
+
+
+@pytest.fixture(scope="module")
+def noisy():
+    results, shapes = noisy_results()
+    return build_sweep(results, dict(SWEEP, shapes=shapes))
+
+
+def cells_of(table) -> dict[tuple, dict[str, object]]:
+    """{(lead cells...): {header: Cell}} of a Table."""
+    lead = table.headers.index("series") + 1
+    return {tuple(c.text for c in row[:lead]): dict(zip(table.headers, row)) for row in table.rows}
+
+
+def test_sweep_bold_is_the_best_and_its_ties_within_one_value(noisy):
+    for key in ("sweep-sals.o_threshold", "sweep-sals.o_threshold-median"):
+        cd = {k: cells["CD ×1e3 ↓"] for k, cells in cells_of(noisy.tables[key]).items()}
+        # 0.1: a tiny noisy difference over 20 shapes -> both bold, the one not best marked as a tie
+        assert cd["0.1", "sals"].bold and cd["0.1", "bof"].bold
+        assert [cd["0.1", s].text.endswith("†") for s in ("sals", "bof")] == [False, True]
+        # 0.5: a large consistent difference -> the winner alone, no tie mark
+        assert (cd["0.5", "bof"].bold, cd["0.5", "sals"].bold) == (True, False)
+        assert not cd["0.5", "bof"].text.endswith("†") and not cd["0.5", "sals"].text.endswith("†")
+        # the ceiling is the lowest everywhere but a reference: never bold, never a tie
+        assert not any(cd[v, "sals (oracle)"].bold or "†" in cd[v, "sals (oracle)"].text for v in ("0.1", "0.5"))
+    caption = noisy.tables["sweep-sals.o_threshold"].caption
+    assert "Bold compares the methods within one value of sals.o_threshold" in caption
+    assert "tied by construction" not in caption  # 20 paired shapes: the test decides
+    assert "p-values in sweep.csv" in caption
+
+
+def test_sweep_means_carry_their_interval(noisy):
+    table = noisy.tables["sweep-sals.o_threshold"]
+    cells = cells_of(table)
+    assert cells["0.5", "sals"]["NC ↑"].detail == "[0.900, 0.900]"  # a constant column: [c, c]
+    assert cells["0.1", "sals (oracle)"]["NC ↑"].detail == "[0.900, 0.900]"  # references too
+    low, high = map(float, cells["0.5", "bof"]["CD ×1e3 ↓"].detail.strip("[]").split(", "))
+    assert low < float(cells["0.5", "bof"]["CD ×1e3 ↓"].text) < high  # 2 + 0.1 i over 20 shapes: 2.950
+    assert cells["0.5", "bof"]["#F"].detail == ""  # validity means: no interval
+    assert all(c.detail == "" for row in noisy.tables["sweep-sals.o_threshold-median"].rows for c in row)
+    markdown = reports.sweep.sweep_markdown(noisy, SWEEP)
+    assert r"**0.900** \[0.900, 0.900\]" in markdown and r"**2.950** \[" in markdown  # bof's CD at 0.5
+
+
+def test_sweep_csv_intervals_and_p_values(noisy, tmp_path):
+    reports.sweep.write_sweep(noisy, SWEEP, tmp_path)
+    csv = pd.read_csv(tmp_path / "sweep.csv").set_index(["value", "series", "quantity"])
+    assert csv.loc[(0.5, "sals", "nc"), ["ci_low", "ci_high"]].tolist() == [0.9, 0.9]
+    assert csv.loc[(0.5, "sals", "cd"), "p_vs_best"] < 0.05 < csv.loc[(0.1, "bof", "cd"), "p_vs_best"]
+    assert np.isnan(csv.loc[(0.5, "bof", "cd"), "p_vs_best"])  # the best itself
+    assert np.isfinite(csv.loc[(0.5, "sals (oracle)", "cd"), "ci_low"])  # a reference still has its interval
+    assert csv.loc[[(0.5, "sals (oracle)", "cd"), (0.5, "sals", "n_faces")], "p_vs_best"].isna().all()
+    assert csv.loc[(0.5, "sals", "n_faces"), ["ci_low", "ci_high"]].isna().all()
