@@ -15,7 +15,7 @@ Keys:
   the code digest of the method's module (its extractor and query code included).
 
 Jobs that need the same fit (a sweep of extraction settings) share it: the job that fits holds the
-weights entry's lock (``weights/<method>_<key>.lock``, :meth:`RunCaches.fit_lock`); the others wait
+weights entry's lock (``locks/weights_<method>_<key>.lock``, :meth:`RunCaches.fit_lock`); the others wait
 and load the saved weights. With the caches off every job fits for itself.
 
 :func:`code_digest` follows the imports it finds in the source (``import``/``from`` statements,
@@ -189,7 +189,7 @@ class RunCaches:
     def fit_lock(self, method, key: str) -> Iterator[None]:
         """Hold the exclusive lock of one weights entry (an flock, so it works across processes and
         is released if the holder dies): a second job needing the same fit waits, then loads it."""
-        path = self._path("weights", method.name, key, ".lock")
+        path = self._path("locks", f"weights_{method.name}", key, ".lock")
         if path is None:
             yield
             return
