@@ -11,6 +11,8 @@ import pytest
 
 from benchmark.grid import EdgeField, edge_axes, edge_endpoints, num_edges, spacing
 from methods.edc import (
+    FAN_PLANE_TOLERANCE,
+    _adaptive_split,
     edc_cell_vertices,
     edc_extract,
     edc_from_edge_field,
@@ -59,6 +61,23 @@ def edge_use_counts(faces):
     e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
     _, counts = np.unique(e, axis=0, return_counts=True)
     return counts
+
+
+def adjacent_abs_cos(v, f):
+    """|cos| of the angle between the normals of every two faces that share a mesh edge (faces of
+    zero area left out): below 0.2 is a crease NDC's sharp-edge test would flag (> 78.5 degrees)."""
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    length = np.linalg.norm(n, axis=1)
+    keep = length > 1e-14
+    n = n / np.where(keep, length, 1.0)[:, None]
+    e = np.sort(f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    face = np.repeat(np.arange(len(f)), 3)
+    order = np.lexsort((e[:, 1], e[:, 0]))
+    e, face = e[order], face[order]
+    same = (e[1:] == e[:-1]).all(axis=1)
+    a, b = face[:-1][same], face[1:][same]
+    ok = keep[a] & keep[b]
+    return np.abs(np.einsum("ij,ij->i", n[a[ok]], n[b[ok]]))
 
 
 def box_faces(a):
@@ -172,6 +191,74 @@ def test_quad2_vs_fan4_counts():
     assert len(f4) == 4 * K and len(f2) == 2 * K
     assert len(v4) == len(v2) + K
     assert np.allclose(v4[: len(v2)], v2)
+
+
+def test_fan4_adaptive_is_fan4_on_a_plane():
+    # one tilted plane: QEF vertices and edge points all lie on it, so every edge keeps its fan
+    n = np.array([0.2, 0.3, 1.0]) / np.linalg.norm([0.2, 0.3, 1.0])
+    ids, s, nrm = field_arrays(N, [(n, 0.1, None)])
+    v4, f4, _ = edc_extract(N, ids, s, nrm, faces="fan4")
+    va, fa, _ = edc_extract(N, ids, s, nrm, faces="fan4-adaptive")
+    assert np.array_equal(fa, f4) and np.array_equal(va, v4)
+    assert np.abs(va @ n - 0.1).max() < 1e-12
+    assert adjacent_abs_cos(va, fa).min() > 1 - 1e-9  # coplanar faces
+
+
+def test_fan4_adaptive_removes_thin_wall_creases():
+    # a tilted wall 0.5 h thick (like ABC 00014489's plate at 128^3): cells holding both sheets get
+    # a rank-1 QEF vertex between them, the edge point lies on a sheet, and the paper's fan folds
+    n = np.array([0.8, 0.41, 0.43]) / np.linalg.norm([0.8, 0.41, 0.43])
+    c0, c1 = 0.0123, 0.0123 + 0.5 * H
+    ids, s, nrm = field_arrays(N, [(n, c0, None), (n, c1, None)])
+    v4, f4, _ = edc_extract(N, ids, s, nrm, faces="fan4")
+    va, fa, _ = edc_extract(N, ids, s, nrm, faces="fan4-adaptive")
+    assert (adjacent_abs_cos(v4, f4) < 0.2).sum() > 50  # fan4: creases > 78.5 degrees in a flat wall
+    assert adjacent_abs_cos(va, fa).min() >= 0.2  # fan4-adaptive: none
+    assert ((va @ n >= c0 - 1e-12) & (va @ n <= c1 + 1e-12)).all()  # every vertex inside the wall
+    assert len(f4) > len(fa) > len(f4) // 2  # some edges keep their fan, some are split
+    # the same ring edges: the same boundary and non-manifold edges
+    c4, ca = edge_use_counts(f4), edge_use_counts(fa)
+    assert (ca == 1).sum() == (c4 == 1).sum() and (ca > 2).sum() == (c4 > 2).sum() > 0
+
+
+def test_fan4_adaptive_keeps_open_and_non_manifold_surfaces():
+    b = 0.5321
+    bounds = np.array([[-b, b], [-b, b], [0.0123, 0.0123]])
+    ids, s, nrm = field_arrays(N, [((0, 0, 1), 0.0123, bounds)])
+    v4, f4, _ = edc_extract(N, ids, s, nrm, faces="fan4")
+    va, fa, _ = edc_extract(N, ids, s, nrm, faces="fan4-adaptive")
+    assert np.array_equal(fa, f4) and np.array_equal(va, v4)  # the open square: all fans
+    # 8 x 8 intersected z-edges (grid coordinates -1 + k h, k = 4..11, within b): an 8 x 8 grid of
+    # quads whose boundary loop has 4 x 8 edges
+    side = int((np.abs(-1 + np.arange(N) * H) <= b).sum())
+    assert side == 8 and len(fa) == 4 * side * side
+    counts = edge_use_counts(fa)
+    assert (counts == 1).sum() == 4 * side and counts.max() == 2
+    c1, c2 = 0.0711, -0.1234
+    ids, s, nrm = field_arrays(N, [((1, 0, 0), c1, None), ((0, 1, 0), c2, None)])
+    v4, f4, _ = edc_extract(N, ids, s, nrm, faces="fan4")
+    va, fa, _ = edc_extract(N, ids, s, nrm, faces="fan4-adaptive")
+    c4, ca = edge_use_counts(f4), edge_use_counts(fa)
+    assert (ca > 2).sum() == (c4 > 2).sum() >= N - 3  # the crossing line stays non-manifold
+    assert (ca == 1).sum() == (c4 == 1).sum()
+    assert ((np.abs(va[:, 0] - c1) < 1e-12) | (np.abs(va[:, 1] - c2) < 1e-12)).all()
+
+
+def test_fan4_adaptive_choice_by_hand():
+    # unit square in z = 0 (h = 1): the fan when the edge point is within the tolerance of its plane
+    square = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=float)
+    t = FAN_PLANE_TOLERANCE
+    points = np.array([[0.5, 0.5, 0.0], [0.3, 0.6, 0.9 * t], [0.5, 0.5, -1.1 * t]])
+    is_fan, _ = _adaptive_split(np.repeat(square[None], 3, axis=0), points, 1.0)
+    assert is_fan.tolist() == [True, True, False]
+    # skew quad, corner 2 lifted: split 0-2 gives normals (0, -1, 1), (-1, 0, 1) (|cos| 1/2), split
+    # 1-3 gives (-1, -1, 1), (0, 0, 1) (|cos| 1/sqrt 3): the flatter split is 1-3
+    skew = np.array([[[0, 0, 0], [1, 0, 0], [1, 1, 1], [0, 1, 0]]], dtype=float)
+    is_fan, flip = _adaptive_split(skew, np.array([[0.5, 0.5, 0.0]]), 1.0)
+    assert flip.tolist() == [True] and is_fan.tolist() == [False]  # 0.25 off the mean plane
+    # a degenerate quad (all 4 vertices at one point) is split
+    is_fan, _ = _adaptive_split(np.zeros((1, 4, 3)), np.zeros((1, 3)), 1.0)
+    assert is_fan.tolist() == [False]
 
 
 def test_clamp_keeps_vertices_in_their_cells():
