@@ -35,8 +35,8 @@ class BOFMethod(Method):
     parameters = {
         "level": Param(0.5, "occupancy probability of the extracted level set", gt=0, lt=1),
         "near_eps": Param(0.01, "blocks with a corner probability in (eps, 1 - eps) are queried finely",
-                          gt=0, lt=0.5),
-        "stride": Param(query.DEFAULT_STRIDE, "coarse stride of the sparse query", ge=1),
+                          gt=0, lt=0.5, neural_only=True),
+        "stride": Param(query.DEFAULT_STRIDE, "coarse stride of the sparse query", ge=1, neural_only=True),
     }
 
     def training_targets(self, fields, samples) -> dict[str, np.ndarray]:

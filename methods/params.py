@@ -36,6 +36,7 @@ class Param:
     lt: float | None = None
     le: float | None = None
     choices: tuple[str, ...] | None = None
+    neural_only: bool = False  # read only by the neural field's query (the exact field ignores it)
 
     @property
     def kind(self) -> type:

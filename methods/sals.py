@@ -51,7 +51,7 @@ class SALSMethod(Method):
     display_order = 40
     color = "#e4572e"
     parameters = {
-        "o_threshold": Param(0.1, "an edge is intersected when o_hat > this", gt=0, lt=1),
+        "o_threshold": Param(0.1, "an edge is intersected when o_hat > this", gt=0, lt=1, neural_only=True),
         "normals": Param(True, "E-DC vertices from the QEF with autograd normals (else mass points)"),
         "qef_cutoff": Param(0.1, "eigenvalues of A^T A below this are dropped in the QEF", ge=0),
         "clamp_to_cell": Param(False, "clip each QEF vertex to its cell (off in the paper)"),
@@ -59,8 +59,8 @@ class SALSMethod(Method):
                        "where its edge point lies on the plane of the 4 cell vertices, else 2 triangles "
                        "(fan4-adaptive: no thin-wall folds, see methods.edc.edc_extract)",
                        choices=("fan4", "quad2", "fan4-adaptive")),
-        "o_low": Param(0.02, "coarse edges with o_hat > this mark blocks for the sparse query", gt=0, lt=1),
-        "stride": Param(query.DEFAULT_STRIDE, "coarse stride of the sparse query", ge=1),
+        "o_low": Param(0.02, "coarse edges with o_hat > this mark blocks for the sparse query", gt=0, lt=1, neural_only=True),
+        "stride": Param(query.DEFAULT_STRIDE, "coarse stride of the sparse query", ge=1, neural_only=True),
     }
 
     def training_targets(self, fields, samples) -> dict[str, np.ndarray]:

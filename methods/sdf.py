@@ -34,7 +34,7 @@ class SDFMethod(Method):
     color = "#3a7fc1"
     parameters = {
         "level": Param(0.0, "iso level of marching cubes (canonical units)", gt=-CLAMP, lt=CLAMP),
-        "stride": Param(query.DEFAULT_STRIDE, "coarse stride of the sparse query", ge=1),
+        "stride": Param(query.DEFAULT_STRIDE, "coarse stride of the sparse query", ge=1, neural_only=True),
     }
 
     def training_targets(self, fields, samples) -> dict[str, np.ndarray]:

@@ -52,7 +52,7 @@ class UDFMethod(Method):
         "sign_rule": Param("hybrid", "pseudo-sign rule of a cube's corners", choices=("hybrid", "anchor")),
         "vertex_udf": Param("field", "vertex UDF of the face filter: the continuous field or MeshUDF's estimate",
                             choices=("field", "estimate")),
-        "stride": Param(query.DEFAULT_STRIDE, "coarse stride of the sparse query", ge=1),
+        "stride": Param(query.DEFAULT_STRIDE, "coarse stride of the sparse query", ge=1, neural_only=True),
     }
 
     def training_targets(self, fields, samples) -> dict[str, np.ndarray]:

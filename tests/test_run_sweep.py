@@ -169,3 +169,16 @@ def test_jobs_that_share_a_fit_are_scheduled_after_every_fitting_job(fakes, tmp_
     assert kinds == [("floor", "builtin_000", None), ("job", "builtin_000", 0.0),
                      ("floor", "builtin_001", None), ("job", "builtin_001", 0.0),
                      ("job", "builtin_000", 0.01), ("job", "builtin_001", 0.01)]
+
+
+def test_a_parameter_only_the_neural_query_reads_gives_one_ceiling_job(tmp_path):
+    from benchmark.run.tasks import build_tasks
+
+    args = build_parser().parse_args(["--methods", "sals", "--limit", "1", "--sweep", "sals.o_threshold=0.1,0.5",
+                                      "--sweep", "sals.normals=yes,no", "--out", str(tmp_path / "r")])
+    floors, jobs = build_tasks(resolve(configure(args, tmp_path / "r")))
+    neural = [j for j in jobs if j.mode == "neural"]
+    oracle = [j for j in jobs if j.mode == "oracle"]
+    assert len(neural) == 4 and len(oracle) == 2  # the exact field has no o: only normals splits the ceiling
+    assert [j.sweep for j in oracle] == [{"sals.normals": True}, {"sals.normals": False}]
+    assert all(j.params["o_threshold"] == 0.1 for j in oracle)  # the default, not a swept value

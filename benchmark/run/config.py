@@ -440,7 +440,7 @@ def _variants(config: RunConfig, methods: tuple[str, ...]) -> tuple[dict[str, tu
                              **{keys[k].target: v for k, v in values.items() if keys[k].kind == "budget"}}
             method_params = {m: dict(p) for m, p in config.method_params.items()}
             for k, v in values.items():
-                if keys[k].kind == "method":
+                if keys[k].kind == "method" and keys[k].applies_to(keys[k].method, mode):
                     method_params.setdefault(keys[k].method, {})[keys[k].target] = v
             neural = mode == "neural"
             if not neural:

@@ -10,7 +10,8 @@ A sweep key names one setting of a job:
 Values are typed and range-checked by the key's :class:`methods.params.Param`, exactly as
 ``--method-param`` and ``--budget-param`` values are. Several keys give their cross product, in the
 order given (:func:`variants`). A key applies to a job or not (:meth:`SweepKey.applies_to`): a
-method parameter only to that method's jobs, a budget key only to fitted (neural) jobs. A job that a
+method parameter only to that method's jobs (and, if only the neural query reads it, e.g.
+``sals.o_threshold``, only to its neural jobs), a budget key only to fitted (neural) jobs. A job that a
 key does not apply to is the same job for every value of the key and runs once (its row has no value
 in that key's column; the sweep reports show it as a constant reference).
 """
@@ -47,8 +48,8 @@ class SweepKey:
 
     def applies_to(self, method: str, mode: str) -> bool:
         """Whether a job of ``method`` in ``mode`` depends on this key."""
-        if self.kind == "method":
-            return method == self.method
+        if self.kind == "method":  # a parameter of the neural query only: the exact field ignores it
+            return method == self.method and (mode == "neural" or not self.param.neural_only)
         if self.kind == "budget" or self.target == "budget":
             return mode == "neural"
         return True
