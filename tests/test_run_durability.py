@@ -4,16 +4,15 @@ table equals an uninterrupted run's, finished jobs are never recomputed, the cha
 from __future__ import annotations
 
 import os
-import signal
 import sqlite3
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pandas as pd
 
 from tests.fake_methods import PLUGIN
+from tests.kill_run import kill_after_ok_jobs
 
 REPO = Path(__file__).resolve().parents[1]
 METRICS = ["shape", "method", "seed", "status", "cd", "nc", "f1_005", "f1_01", "ecd", "ef1", "n_vertices", "n_faces"]
@@ -29,23 +28,8 @@ def test_kill9_resume_twice_then_a_changed_flag_is_refused(tmp_path):
     args = ["--methods", "test_sdf", "test_occ", "--mode", "oracle", "--grid", "24", "--eval-points", "5000",
             "--seed", "0", "1", "2", "--no-cache", "--plugin", PLUGIN, "--quiet"]
     killed = tmp_path / "killed"
-    proc = subprocess.Popen([sys.executable, "run_benchmark.py", *args, "--out", str(killed)], cwd=REPO,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            env={**os.environ, "SALSBENCH_CACHE": str(cache)})
+    kill_after_ok_jobs(args, killed, {**os.environ, "SALSBENCH_CACHE": str(cache)})
     db = killed / "results.db"
-    deadline = time.monotonic() + 180
-    while time.monotonic() < deadline and proc.poll() is None:
-        if db.is_file():
-            try:
-                with sqlite3.connect(db, timeout=1) as con:
-                    if con.execute("SELECT count(*) FROM jobs WHERE status='ok'").fetchone()[0] >= 1:
-                        break
-            except sqlite3.Error:
-                pass
-        time.sleep(0.02)
-    assert proc.poll() is None, f"run ended before it could be killed: {proc.stderr.read().decode()[-500:]}"
-    proc.send_signal(signal.SIGKILL)
-    proc.wait(timeout=30)
     with sqlite3.connect(db) as con:
         before = dict(con.execute("SELECT config_hash, finished FROM jobs WHERE status='ok'").fetchall())
     assert 1 <= len(before) < 24                        # 4 shapes x 2 methods x 3 seeds in all

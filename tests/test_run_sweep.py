@@ -9,11 +9,9 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import sqlite3
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pandas as pd
@@ -23,6 +21,7 @@ from benchmark.run.cli import EXIT_REFUSED, build_parser, configure, main, recip
 from benchmark.run.config import resolve
 from benchmark.run.sweep import variants
 from tests.fake_methods import PLUGIN
+from tests.kill_run import kill_after_ok_jobs
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -128,21 +127,7 @@ def test_a_killed_sweep_resumes_to_the_uninterrupted_table(tmp_path):
             "--sweep", "grid=20,24,28", "--sweep", "test_sdf.level=0,0.01", "--no-cache", "--plugin", PLUGIN,
             "--quiet"]
     killed = tmp_path / "killed"
-    proc = subprocess.Popen([sys.executable, "run_benchmark.py", *args, "--out", str(killed)], cwd=REPO,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
-    db = killed / "results.db"
-    deadline = time.monotonic() + 180
-    while time.monotonic() < deadline and proc.poll() is None:
-        try:
-            with sqlite3.connect(db, timeout=1) as con:
-                if con.execute("SELECT count(*) FROM jobs WHERE status='ok'").fetchone()[0] >= 2:
-                    break
-        except sqlite3.Error:
-            pass
-        time.sleep(0.02)
-    assert proc.poll() is None, f"run ended before it could be killed: {proc.stderr.read().decode()[-500:]}"
-    proc.send_signal(signal.SIGKILL)
-    proc.wait(timeout=30)
+    kill_after_ok_jobs(args, killed, env, ok_jobs=2)
     resumed = subprocess.run([sys.executable, "run_benchmark.py", "--resume", "--out", str(killed)], cwd=REPO,
                              capture_output=True, text=True, timeout=600, env=env)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
