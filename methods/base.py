@@ -66,6 +66,10 @@ class Method:
     loss_needs_input_grad: ClassVar[bool] = False
     display_order: ClassVar[int] = 100
     color: ClassVar[str] = "#7f7f7f"
+    #: The benchmark task the method serves: ``'encode'`` (a field fitted per shape from the mesh's
+    #: exact fields: this class) or ``'reconstruct'`` (a mesh from a raw point cloud:
+    #: :class:`PointCloudMethod`).
+    task: ClassVar[str] = "encode"
 
     def __init__(self, **params: Any):
         unknown = sorted(set(params) - set(self.parameters))
@@ -115,6 +119,24 @@ class Method:
         return {"name": self.name, "extractor": self.extractor, "input": self.input_kind, "params": dict(self.params)}
 
 
+class PointCloudMethod(Method):
+    """A method of the ``reconstruct`` task: a mesh from a raw point cloud, no normals given.
+
+    Subclasses implement :meth:`reconstruct`; classic (non-learned) methods need nothing else. The
+    job samples the point cloud (``benchmark.surface.sample_surface`` with the job's sampler
+    stream, the same cloud for every method of a (shape, seed)) and times ``reconstruct`` as the
+    ``reconstruct`` stage (sub-steps via :func:`benchmark.timing.stage`).
+    """
+
+    task: ClassVar[str] = "reconstruct"
+    input_kind: ClassVar[str] = "points"
+
+    def reconstruct(self, points: np.ndarray, N: int, device=None) -> Extraction:
+        """A mesh (canonical frame) from ``points`` (P, 3) float64 in the canonical frame; ``N`` is
+        the run's grid resolution (methods with their own resolution rule derive it from N)."""
+        raise NotImplementedError
+
+
 def _import_method_modules() -> None:
     """Import every module of the ``methods`` package once, so each file registers itself."""
     import methods
@@ -135,9 +157,9 @@ def register_method(cls: type[Method]) -> type[Method]:
     return METHODS.register(cls.name, cls)
 
 
-def available_methods() -> list[str]:
-    """Registered method names in display order."""
-    return METHODS.names()
+def available_methods(task: str | None = "encode") -> list[str]:
+    """Registered method names of one task (None: every task) in display order."""
+    return [m for m in METHODS.names() if task is None or METHODS.get(m).task == task]
 
 
 def get_method(name: str, **params: Any) -> Method:

@@ -19,7 +19,8 @@ import sys
 from pathlib import Path
 from typing import Any, Sequence
 
-from benchmark.run.config import MIN_EVAL_POINTS, MIN_GRID, MODES, ConfigError, RunConfig, import_plugins, resolve
+from benchmark.run.config import (DEFAULT_PC_POINTS, MIN_EVAL_POINTS, MIN_GRID, MIN_PC_POINTS, MODES, TASKS, ConfigError,
+                                  RunConfig, import_plugins, resolve)
 from benchmark.run.records import SchemaMismatch
 from benchmark.run.rundir import RunDirectory, check_writable_dir, saved_config
 
@@ -72,6 +73,13 @@ def build_parser() -> argparse.ArgumentParser:
     a = p.add_argument
     a("--config", metavar="FILE", help="settings from a TOML/JSON file or a run's config.json (options given "
                                        "here override it); with --out NEW it reproduces that run")
+    a("--task", choices=TASKS, help="encode (default): fit a field per shape from its mesh and extract it; "
+                                    "reconstruct: a mesh from a raw point cloud sampled from the GT (no normals)")
+    a("--pc-points", dest="pc_points", type=int, metavar="P",
+      help=f"reconstruct task: points of the input cloud (default {DEFAULT_PC_POINTS:,}, the paper's; "
+           f">= {MIN_PC_POINTS})")
+    a("--pc-noise", dest="pc_noise", type=float, metavar="SIGMA",
+      help="reconstruct task: Gaussian noise sigma added to the input points, canonical units (default 0)")
     a("--methods", nargs="+", metavar="METHOD", help="methods to run (default: every registered method)")
     a("--dataset", metavar="NAME", help="dataset: builtin (default; 4 generated CAD-like shapes, no download), "
                                         "abc, abc-nonmanifold, meshes (any folder of mesh files)")
@@ -213,7 +221,7 @@ def typed_settings(config: RunConfig) -> RunConfig:
         return config
     import_plugins(config.plugins)
     from benchmark.run.sweep import typed_sweep
-    from methods.base import METHODS
+    from methods.base import METHODS, available_methods
     from methods.fitting import BUDGET_PARAMS
 
     budget_params = {}
@@ -225,7 +233,7 @@ def typed_settings(config: RunConfig) -> RunConfig:
             budget_params[key] = BUDGET_PARAMS[key].parse(value, f"--budget-param {key}")
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
-    methods = config.methods or tuple(METHODS.names())
+    methods = config.methods or tuple(available_methods(config.task))
     for m in methods:
         if m not in METHODS:
             raise ConfigError(f"--methods: {METHODS.unknown(m)}")

@@ -31,7 +31,10 @@ from typing import Any, Mapping
 from benchmark.seeding import MAX_SEED
 
 MODES = ("neural", "oracle")
-TASKS = ("encode",)
+TASKS = ("encode", "reconstruct")
+#: Fewest points of an input cloud (reconstruct task).
+MIN_PC_POINTS = 100
+DEFAULT_PC_POINTS = 40_000
 MIN_GRID = 8
 MIN_EVAL_POINTS = 1000
 #: Bytes per N^3 of the dense buffers of one job at grid N (see :func:`grid_memory_bytes`).
@@ -84,6 +87,8 @@ class RunConfig:
     eval_points: int | None = _f(None, "identity", "metric samples per mesh (None: the preset's)")
     method_params: Mapping[str, Mapping[str, Any]] = _f({}, "identity", "extractor parameters per method")
     checkpoints: tuple[float, ...] = _f((), "identity", "fractions of the fit at which the network is scored too")
+    pc_points: int = _f(DEFAULT_PC_POINTS, "identity", "points of the input cloud (reconstruct task)")
+    pc_noise: float = _f(0.0, "identity", "Gaussian noise sigma of the input points, canonical units (reconstruct)")
     budget_params: Mapping[str, Any] = _f({}, "identity", "overrides of the budget's values (neural mode)")
     sweep: Mapping[str, tuple] = _f({}, "identity", "swept settings, {key: values} (cross product)")
     ceiling: bool = _f(True, "identity", "a neural sweep also runs the same sweep in oracle mode")
@@ -104,7 +109,11 @@ class RunConfig:
     def __post_init__(self):
         for f in dataclasses.fields(self):
             object.__setattr__(self, f.name, _coerce(f, getattr(self, f.name)))
-        if self.mode == "oracle" and self.budget is not None:
+        if self.task == "reconstruct" and self.budget is not None:
+            object.__setattr__(self, "budget", None)  # the classic reconstruction methods fit nothing
+        elif self.task == "reconstruct":
+            pass
+        elif self.mode == "oracle" and self.budget is not None:
             object.__setattr__(self, "budget", None)  # oracle mode fits nothing: no budget in the protocol
         elif self.mode == "neural" and self.budget is None:
             object.__setattr__(self, "budget", "cpu")
@@ -144,6 +153,15 @@ class RunConfig:
                 raise ConfigError("--checkpoints needs --mode neural (oracle mode fits nothing)")
             if not all(0 < f <= 1 for f in c) or any(b <= a for a, b in zip(c, c[1:])):
                 raise ConfigError(f"--checkpoints must be increasing fractions of the budget in (0, 1], got {list(c)}")
+        if self.task == "encode" and (self.pc_points != DEFAULT_PC_POINTS or self.pc_noise != 0):
+            raise ConfigError("--pc-points and --pc-noise apply to --task reconstruct")
+        if self.task == "reconstruct":
+            if self.mode != "neural" or self.checkpoints or self.budget_params:
+                raise ConfigError("--mode oracle, --checkpoints and --budget-param apply to --task encode")
+            if self.pc_points < MIN_PC_POINTS:
+                raise ConfigError(f"--pc-points must be >= {MIN_PC_POINTS}, got {self.pc_points}")
+            if not 0 <= self.pc_noise < 1:
+                raise ConfigError(f"--pc-noise must be a sigma in [0, 1) canonical units, got {self.pc_noise}")
         if self.budget_params and self.mode != "neural":
             raise ConfigError("--budget-param needs --mode neural (oracle mode fits nothing)")
         swept = tuple(self.sweep.get("seed", ()))
@@ -371,19 +389,21 @@ def resolve(config: RunConfig) -> Plan:
         except (ImportError, AttributeError) as exc:
             raise ConfigError(f"--plugin {name}: cannot load ({type(exc).__name__}: {exc})") from None
     from benchmark.metrics import PRESETS
-    from methods.base import METHODS
+    from methods.base import METHODS, available_methods
     from methods.fitting import get_budget
     from methods.params import ParamError
 
     try:
-        methods = tuple(config.methods) or tuple(METHODS.names())
+        methods = tuple(config.methods) or tuple(available_methods(config.task))
         for m in methods:
-            METHODS.get(m)
+            if METHODS.get(m).task != config.task:
+                raise ConfigError(f"method '{m}' belongs to the {METHODS.get(m).task} task, not to --task "
+                                  f"{config.task} (its methods: {', '.join(available_methods(config.task))})")
         for m in config.method_params:
             if m not in methods:
                 raise ConfigError(f"--method-param names method '{m}', which is not in --methods ({', '.join(methods)})")
         params = {m: METHODS.get(m)(**config.method_params.get(m, {})).params for m in methods}
-        budget = get_budget(config.budget, config.budget_params) if config.mode == "neural" else None
+        budget = get_budget(config.budget, config.budget_params) if config.budget is not None else None
         if config.metric_preset not in PRESETS:
             raise ConfigError(f"unknown metric preset '{config.metric_preset}'; known metric presets: "
                               f"{', '.join(PRESETS)}")
@@ -429,7 +449,8 @@ def _variants(config: RunConfig, methods: tuple[str, ...]) -> tuple[dict[str, tu
             config.budget_params if key.kind == "budget" else {})
         if key.target in given:
             raise ConfigError(f"--sweep {name} and a fixed value of the same setting are both given: give one")
-    modes = [config.mode] + (["oracle"] if typed and config.ceiling and config.mode == "neural" else [])
+    ceiling = typed and config.ceiling and config.mode == "neural" and config.task == "encode"
+    modes = [config.mode] + (["oracle"] if ceiling else [])
     out = []
     for mode in modes:
         for i, values in enumerate(sweeps.variants(typed)):

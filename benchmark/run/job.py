@@ -9,8 +9,10 @@ Stages of a job (each timed by :class:`benchmark.timing.StageTimer` as ``<stage>
 shape; neural mode: ``sample`` (the shared sampler), ``label`` (``method.training_targets`` on the
 exact fields), ``fit`` (``methods.fitting.fit``, or cached weights), ``query`` (``method.neural_grid``);
 oracle mode: ``query`` (``method.oracle_grid`` on the exact fields); then ``extract``
-(``method.extract``) and ``metrics`` (``benchmark.metrics.evaluate`` against the GT). Randomness comes
-from :func:`benchmark.seeding.job_streams` of (shape content hash, seed).
+(``method.extract``) and ``metrics`` (``benchmark.metrics.evaluate`` against the GT). A job of the
+``reconstruct`` task: ``load``, ``sample`` (the input point cloud, :func:`input_point_cloud`),
+``reconstruct`` (``PointCloudMethod.reconstruct``), ``metrics``. Randomness comes from
+:func:`benchmark.seeding.job_streams` of (shape content hash, seed).
 """
 
 from __future__ import annotations
@@ -303,6 +305,41 @@ def _floor_body(spec: FloorSpec, shape, device, timer: StageTimer, result: TaskR
            result, report)
 
 
+def input_point_cloud(shape, n: int, noise: float, seed: int) -> np.ndarray:
+    """The reconstruct task's input: ``n`` area-uniform points of the GT surface (the shared surface
+    sampler on the job's sampler stream: the same cloud for every method of a (shape, seed)) plus
+    Gaussian noise of sigma ``noise`` (canonical units) from the same stream; no normals."""
+    from benchmark.seeding import job_streams
+    from benchmark.surface import sample_surface
+
+    rng = job_streams(shape.content_hash, seed).sampler_rng()
+    points, _ = sample_surface(shape.vertices, shape.faces, n, rng)
+    if noise > 0:
+        points = points + rng.normal(scale=noise, size=points.shape)
+    return np.asarray(points, dtype=np.float64)
+
+
+def _reconstruct_body(spec: JobSpec, shape, device, timer: StageTimer, result: TaskResult, report: _Progress) -> None:
+    """The reconstruct task: sample the input cloud, reconstruct, score against the GT."""
+    from benchmark import metrics
+    from methods.base import get_method
+
+    method = get_method(spec.method, **spec.params)
+    report("sampling")
+    with stage("sample"):
+        points = input_point_cloud(shape, spec.pc_points, spec.pc_noise, spec.seed)
+    report("reconstructing")
+    with stage("reconstruct"):
+        extraction = method.reconstruct(points, spec.grid, device)
+    result.info.update({k: v for k, v in extraction.info.items() if isinstance(v, (int, float, str, bool))})
+    _score(metrics.evaluate, spec, shape, np.asarray(extraction.vertices, dtype=np.float64),
+           np.asarray(extraction.faces, dtype=np.int64), result, report)
+
+
+#: The job body of each task (``RunConfig.task``).
+_JOB_BODIES = {"encode": _job_body, "reconstruct": _reconstruct_body}
+
+
 def run_task(spec, progress: Callable[..., None] | None = None) -> TaskResult:
     """Run a job or a floor task end to end; never raises (the single entry point of every executor)."""
-    return _run(spec, progress, _floor_body if isinstance(spec, FloorSpec) else _job_body)
+    return _run(spec, progress, _floor_body if isinstance(spec, FloorSpec) else _JOB_BODIES[spec.task])

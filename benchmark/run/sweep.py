@@ -2,7 +2,8 @@
 
 A sweep key names one setting of a job:
 
-* a run setting: ``grid``, ``eval_points``, ``budget`` (a budget name) or ``seed``;
+* a run setting: ``grid``, ``eval_points``, ``budget`` (a budget name), ``seed``, and for the
+  reconstruct task ``pc_points`` and ``pc_noise``;
 * a budget value: ``budget.NAME`` for NAME in :data:`methods.fitting.BUDGET_PARAMS`
   (``budget.num_samples``, ``budget.iterations``, ...);
 * a method parameter: ``METHOD.NAME`` (``sals.o_threshold``, ``sals.normals``, ``sals.faces``).
@@ -22,7 +23,7 @@ import itertools
 from dataclasses import dataclass
 from typing import Any, Iterable, Mapping, Sequence
 
-from benchmark.run.config import MIN_EVAL_POINTS, MIN_GRID, ConfigError
+from benchmark.run.config import DEFAULT_PC_POINTS, MIN_EVAL_POINTS, MIN_GRID, MIN_PC_POINTS, ConfigError
 from benchmark.seeding import MAX_SEED
 from methods.params import Param, ParamError
 
@@ -32,6 +33,8 @@ RUN_KEYS: dict[str, Param] = {
     "eval_points": Param(1_000_000, "metric samples per mesh", ge=MIN_EVAL_POINTS),
     "budget": Param("cpu", "fitting budget name"),
     "seed": Param(0, "seed", ge=0, le=MAX_SEED),
+    "pc_points": Param(DEFAULT_PC_POINTS, "points of the input cloud (reconstruct task)", ge=MIN_PC_POINTS),
+    "pc_noise": Param(0.0, "noise sigma of the input points (reconstruct task)", ge=0, lt=1),
 }
 
 

@@ -97,6 +97,9 @@ class JobSpec(TaskSpec):
     budget_params: dict = field(default_factory=dict)
     sweep: dict = field(default_factory=dict)
     variant: str = ""
+    task: str = "encode"
+    pc_points: int | None = None
+    pc_noise: float | None = None
 
     kind = "job"
 
@@ -105,12 +108,14 @@ class JobSpec(TaskSpec):
                  "budget": self.budget, "grid": self.grid, "checkpoints": list(self.checkpoints)}
         if self.budget_params:  # only when given: the keys of runs without overrides stay as they were
             ident["budget_params"] = dict(sorted(self.budget_params.items()))
+        if self.task != "encode":  # likewise: encode jobs keep the keys they always had
+            ident.update(task=self.task, pc_points=self.pc_points, pc_noise=self.pc_noise)
         return ident
 
     def fit_identity(self) -> str | None:
         """What the job's fit depends on (the weights cache's key without the code): jobs of a sweep
         that differ only in extraction settings share it. None for an oracle job."""
-        if self.mode != "neural":
+        if not self.uses_fitting:
             return None
         return digest({"dataset": self.dataset, "dataset_options": identity_options(self.dataset_options),
                        "shape": self.shape, "method": self.method, "budget": self.budget,
@@ -119,7 +124,7 @@ class JobSpec(TaskSpec):
     @property
     def uses_fitting(self) -> bool:
         """True when the job trains a network (asks an executor for a GPU when there is one)."""
-        return self.mode == "neural"
+        return self.mode == "neural" and self.budget is not None
 
     @property
     def label(self) -> str:
@@ -141,6 +146,7 @@ def build_tasks(plan) -> tuple[list[FloorSpec], list[JobSpec]]:
         for v in plan.variants:
             vc = v.config
             floor = FloorSpec(shape=s, seed=c.seeds[0], eval_points=vc.eval_points, **common)
+            reconstruct = {"pc_points": vc.pc_points, "pc_noise": vc.pc_noise} if vc.task == "reconstruct" else {}
             floors.setdefault(floor.key, floor)
             for m in plan.methods:
                 values = v.applicable(m)
@@ -151,7 +157,7 @@ def build_tasks(plan) -> tuple[list[FloorSpec], list[JobSpec]]:
                     job = JobSpec(shape=s, seed=seed, method=m, params=v.method_params[m], mode=vc.mode,
                                   budget=vc.budget, budget_params=dict(vc.budget_params), grid=vc.grid,
                                   eval_points=vc.eval_points, checkpoints=vc.checkpoints, cache_dir=cache_dir,
-                                  sweep=values, variant=tag, **common)
+                                  sweep=values, variant=tag, task=vc.task, **reconstruct, **common)
                     jobs.setdefault(job.key, job)
     return list(floors.values()), list(jobs.values())
 

@@ -1,0 +1,54 @@
+"""The reconstruct task through the command line: the input point cloud, a classic baseline end to
+end, and the options that belong to one task refused in the other."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from benchmark.run.cli import EXIT_REFUSED, main
+from benchmark.run.job import input_point_cloud
+from datasets import get_dataset
+
+
+@pytest.fixture(scope="module")
+def shape():
+    ds = get_dataset("builtin")
+    return ds.load(ds.names()[0])
+
+
+def test_the_input_cloud_is_seeded_on_the_surface_and_noised_as_asked(shape):
+    from benchmark.fields import ExactFields
+
+    a, b = input_point_cloud(shape, 5000, 0.0, seed=0), input_point_cloud(shape, 5000, 0.0, seed=0)
+    assert a.shape == (5000, 3) and np.array_equal(a, b)
+    assert not np.array_equal(a, input_point_cloud(shape, 5000, 0.0, seed=1))
+    fields = ExactFields(shape.vertices, shape.faces)
+    assert fields.udf(a).max() < 1e-6  # on the GT surface
+    noisy = input_point_cloud(shape, 5000, 0.01, seed=0)
+    assert np.std(noisy - a) == pytest.approx(0.01, rel=0.05)  # the clean cloud plus N(0, sigma^2) per axis
+
+
+def test_poisson_runs_as_a_reconstruct_task_end_to_end(tmp_path):
+    out = tmp_path / "run"
+    code = main(["--task", "reconstruct", "--methods", "poisson", "--limit", "1", "--grid", "32", "--pc-points",
+                 "5000", "--eval-points", "5000", "--out", str(out), "--quiet", "--cache-dir", str(tmp_path / "c")])
+    assert code == 0
+    df = pd.read_csv(out / "results.csv")
+    assert list(df.method) == ["poisson"] and (df.status == "ok").all()
+    assert df.loc[0, "n_faces"] > 0 and df.loc[0, "cd"] < 0.05 and df.loc[0, "reconstruct_s"] > 0
+    assert "sample_s" in df.columns and "fit_s" in df.columns and np.isnan(df.loc[0, "fit_s"])
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--task", "reconstruct", "--methods", "sals"], "method 'sals' belongs to the encode task"),
+    (["--methods", "poisson"], "method 'poisson' belongs to the reconstruct task"),
+    (["--pc-points", "1000"], "apply to --task reconstruct"),
+    (["--task", "reconstruct", "--pc-points", "10"], "--pc-points must be >= 100"),
+    (["--task", "reconstruct", "--mode", "oracle"], "apply to --task encode"),
+])
+def test_options_of_the_other_task_are_refused_with_one_line(tmp_path, capsys, args, message):
+    assert main([*args, "--out", str(tmp_path / "r")]) == EXIT_REFUSED
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and message in err, err
