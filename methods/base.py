@@ -130,10 +130,38 @@ class PointCloudMethod(Method):
 
     task: ClassVar[str] = "reconstruct"
     input_kind: ClassVar[str] = "points"
+    #: Whether the method needs a network trained across shapes (:class:`LearnedPointCloudMethod`).
+    learned: ClassVar[bool] = False
 
     def reconstruct(self, points: np.ndarray, N: int, device=None) -> Extraction:
         """A mesh (canonical frame) from ``points`` (P, 3) float64 in the canonical frame; ``N`` is
         the run's grid resolution (methods with their own resolution rule derive it from N)."""
+        raise NotImplementedError
+
+
+class LearnedPointCloudMethod(PointCloudMethod):
+    """A learned method of the ``reconstruct`` task: a K-NN local network (:mod:`methods.knn_network`)
+    trained once across many shapes (:mod:`methods.knn_training`), then applied to a test cloud.
+
+    Class attributes: ``network_kind`` ``'segment'`` (the network takes a segment (u, v) and the K
+    nearest input points of its midpoint) or ``'point'`` (a point x and its K nearest input points);
+    ``output_dim`` its outputs. Training samples and labels come from the shared sampler and the
+    exact fields of each training shape, as for the encoding methods (:meth:`training_targets`;
+    ``segments`` or ``points`` of :class:`benchmark.sampler.Samples` by ``network_kind``), the loss
+    from :meth:`loss` (``prediction`` (B, output_dim) logits/values, ``targets`` torch tensors).
+    """
+
+    learned: ClassVar[bool] = True
+    network_kind: ClassVar[str] = "point"
+
+    def training_targets(self, fields, samples) -> dict[str, np.ndarray]:
+        raise NotImplementedError
+
+    def loss(self, prediction, targets: dict, inputs=None, model=None):
+        raise NotImplementedError
+
+    def reconstruct(self, points: np.ndarray, N: int, device=None, model=None) -> Extraction:
+        """A mesh from ``points`` with the trained ``model`` (eval mode; required)."""
         raise NotImplementedError
 
 

@@ -41,6 +41,29 @@ def _logit(p: float) -> float:
     return float(np.log(p / (1.0 - p)))
 
 
+def segment_targets(fields, segments: np.ndarray) -> dict[str, np.ndarray]:
+    """SALS labels of segments (M, 2, 3) from the exact fields: o (hit, 0/1) and s (hit point
+    s u + (1 - s) v), float32."""
+    hit, s, _ = fields.segments(segments[:, 0], segments[:, 1])
+    return {"o": hit.astype(np.float32), "s": s.astype(np.float32)}
+
+
+def segment_loss(prediction, targets):
+    """``10 * mean_{o = 1} |sigmoid(s logit) - s| + BCE(o logit, o)`` (SPEC section 5)."""
+    o = targets["o"]
+    bce = F.binary_cross_entropy_with_logits(prediction[:, 0], o)
+    s_err = (torch.sigmoid(prediction[:, 1]) - targets["s"]).abs()
+    return S_WEIGHT * (s_err * o).sum() / o.sum().clamp(min=1.0) + bce
+
+
+def nearer_endpoint_normals(s: np.ndarray, grad: np.ndarray) -> np.ndarray:
+    """Unit normals from the gradient of s w.r.t. the endpoints (E, 6): d s/d u where s > 0.5 (the
+    hit is nearer u), else d s/d v; zero where the gradient vanishes."""
+    g = np.where((s > 0.5)[:, None], grad[:, :3], grad[:, 3:])
+    norm = np.linalg.norm(g, axis=1, keepdims=True)
+    return np.divide(g, norm, out=np.zeros_like(g), where=norm > 0)
+
+
 @register_method
 class SALSMethod(Method):
     name = "sals"
@@ -64,15 +87,10 @@ class SALSMethod(Method):
     }
 
     def training_targets(self, fields, samples) -> dict[str, np.ndarray]:
-        seg = samples.segments
-        hit, s, _ = fields.segments(seg[:, 0], seg[:, 1])
-        return {"o": hit.astype(np.float32), "s": s.astype(np.float32)}
+        return segment_targets(fields, samples.segments)
 
     def loss(self, prediction, targets, inputs=None, model=None):
-        o = targets["o"]
-        bce = F.binary_cross_entropy_with_logits(prediction[:, 0], o)
-        s_err = (torch.sigmoid(prediction[:, 1]) - targets["s"]).abs()
-        return S_WEIGHT * (s_err * o).sum() / o.sum().clamp(min=1.0) + bce
+        return segment_loss(prediction, targets)
 
     def oracle_grid(self, fields, N, cache):
         ef = cache.get(fields, N, "edges")
@@ -94,9 +112,7 @@ class SALSMethod(Method):
         if self.params["normals"] and len(ids):
             with stage("normals"):
                 _, g = query.evaluate_with_input_grad(model, query.edge_inputs(N, ids), 1, device)
-                g = np.where((s > 0.5)[:, None], g[:, :3], g[:, 3:])
-                norm = np.linalg.norm(g, axis=1, keepdims=True)
-                normals = np.divide(g, norm, out=np.zeros_like(g), where=norm > 0)
+                normals = nearer_endpoint_normals(s, g)
         return {"edge_ids": ids, "s": s, "normals": normals}, {"query_fraction": info.fraction}
 
     def extract(self, grid_field, N) -> Extraction:

@@ -1,0 +1,70 @@
+"""``occ-knn``: a K-NN local network to the occupancy logit (the POCO / ConvONet family, implemented
+here with the shared encoder, not those papers' code) + marching cubes.
+
+A point x and its K nearest input points go through :class:`methods.knn_network.PointKNNNetwork`
+to an occupancy logit, trained once across shapes on the exact occupancy (winding number > 1/2,
+``ExactFields.occupancy``) of the shared samples' points, BCE loss. Inference: the grid points
+within ``band`` h of an input point get the network's probability; every other grid point is
+outside if its connected far region touches the border of the grid, inside otherwise (a flood
+fill, scipy.ndimage.label); marching cubes at 0.5 (scikit-image). Like every occupancy method it
+closes open surfaces and cannot keep a non-manifold branching.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage
+from scipy.special import expit
+import torch.nn.functional as F
+
+from benchmark.grid import spacing
+from benchmark.timing import stage
+from methods.base import Extraction, LearnedPointCloudMethod, register_method
+from methods.knn_query import band_points, evaluate_knn, knn_k
+from methods.marching_cubes import marching_cubes_grid
+from methods.params import Param
+from methods.query import point_inputs
+
+
+def far_occupancy(known: np.ndarray) -> np.ndarray:
+    """(N, N, N) float32 occupancy of the grid points outside ``known`` (bool): 0 for the connected
+    regions of ~known that touch the border of the grid, 1 for the enclosed ones; 0 where known."""
+    labels, _ = ndimage.label(~known)
+    border = np.unique(np.concatenate([labels[[0, -1]].ravel(), labels[:, [0, -1]].ravel(),
+                                       labels[:, :, [0, -1]].ravel()]))
+    enclosed = ~np.isin(labels, border) & ~known
+    return enclosed.astype(np.float32)
+
+
+@register_method
+class OccKNNMethod(LearnedPointCloudMethod):
+    name = "occ-knn"
+    description = "K-NN local network to occupancy (POCO/ConvONet family) + marching cubes"
+    network_kind = "point"
+    output_dim = 1
+    extractor = "marching cubes"
+    display_order = 120
+    color = "#17becf"
+    parameters = {
+        "band": Param(4.0, "grid points within this many h of an input point are queried", gt=0),
+    }
+
+    def training_targets(self, fields, samples) -> dict[str, np.ndarray]:
+        return {"occupancy": np.asarray(fields.occupancy(samples.points), dtype=np.float32)}
+
+    def loss(self, prediction, targets, inputs=None, model=None):
+        return F.binary_cross_entropy_with_logits(prediction[:, 0], targets["occupancy"])
+
+    def reconstruct(self, points, N, device=None, model=None) -> Extraction:
+        if model is None:
+            raise ValueError("occ-knn reconstructs with a trained network: none given")
+        with stage("band"):
+            ijk = band_points(points, N, self.params["band"] * spacing(N))
+        with stage("field"):
+            out, _ = evaluate_knn(model, point_inputs(N, ijk), points, knn_k(model), device)
+            known = np.zeros((N, N, N), dtype=bool)
+            known[tuple(ijk.T)] = True
+            volume = far_occupancy(known)
+            volume[tuple(ijk.T)] = expit(out[:, 0])
+        V, Fc = marching_cubes_grid(volume, 0.5, inside="high")
+        return Extraction(V, Fc, info={"queried_points": int(len(ijk))})
