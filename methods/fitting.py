@@ -158,6 +158,17 @@ def get_budget(budget: str | Budget, overrides: dict | None = None) -> Budget:
     return replace(base, **typed)
 
 
+def checked_loss(losses: torch.Tensor, end: int, every: int, where: Callable[[int], str]) -> float:
+    """The loss of step ``end - 1`` after checking steps ``end - every .. end - 1`` of ``losses`` for
+    NaN/inf (one device-to-host copy per window); the first non-finite one, step ``i``, raises
+    ``FittingError(f"non-finite loss at {where(i)}")``."""
+    start = max(0, end - every)
+    window = losses[start:end].cpu().numpy()
+    if not np.all(np.isfinite(window)):
+        raise FittingError(f"non-finite loss at {where(start + int(np.flatnonzero(~np.isfinite(window))[0]))}")
+    return float(window[-1])
+
+
 @dataclass
 class FitResult:
     """model (eval mode), per-step losses (float32, length ``iterations``), wall seconds, steps, final
@@ -268,13 +279,10 @@ def fit(method, samples, targets: dict, budget: str | Budget, seed: int = 0, dev
         optimizer.step()
         losses[step] = loss.detach()
         if (step + 1) % every == 0 or step + 1 == T:
-            window = losses[max(0, step + 1 - every):step + 1].cpu().numpy()
-            if not np.all(np.isfinite(window)):
-                bad = max(0, step + 1 - every) + int(np.flatnonzero(~np.isfinite(window))[0])
-                raise FittingError(f"non-finite loss at iteration {bad} of {T} (method '{method.name}', "
-                                   f"budget '{budget.name}', seed {seed})")
+            last = checked_loss(losses, step + 1, every, lambda i: f"iteration {i} of {T} (method '{method.name}', "
+                                                                   f"budget '{budget.name}', seed {seed})")
             if progress is not None:
-                progress(step=step + 1, loss=float(window[-1]))
+                progress(step=step + 1, loss=last)
         if step + 1 in pause_at:
             synchronize(device)
             t_pause = time.perf_counter()
@@ -294,12 +302,32 @@ def fit(method, samples, targets: dict, budget: str | Budget, seed: int = 0, dev
 # ---------------------------------------------------------------------------------------------
 # weights as bytes (the run layer's cache stores them checksummed, benchmark.storage)
 # ---------------------------------------------------------------------------------------------
-def model_to_bytes(model, budget: Budget, method_name: str, final_loss: float) -> bytes:
-    """``torch.save`` bytes of ``{'state_dict', 'config' (network), 'budget', 'method', 'final_loss'}``."""
+def weights_to_bytes(model, budget: dict, method_name: str, final_loss: float) -> bytes:
+    """``torch.save`` bytes of ``{'state_dict', 'config' (``model.config``), 'budget', 'method', 'final_loss'}``."""
     buf = io.BytesIO()
-    torch.save({"state_dict": model.state_dict(), "config": model.config, "budget": asdict(get_budget(budget)),
+    torch.save({"state_dict": model.state_dict(), "config": model.config, "budget": budget,
                 "method": method_name, "final_loss": float(final_loss)}, buf)
     return buf.getvalue()
+
+
+def weights_from_bytes(data: bytes, build: Callable[..., torch.nn.Module], device=None,
+                       method_name: str | None = None, what: str = "weights") -> tuple[torch.nn.Module, dict]:
+    """(``build(**config)`` with the stored weights, in eval mode on ``device``; the stored dict) from
+    :func:`weights_to_bytes`' bytes. ``method_name``, when given, must match the stored one (a clear
+    ValueError otherwise, naming ``what``)."""
+    device = get_device(device)
+    blob = torch.load(io.BytesIO(data), map_location=device, weights_only=False)
+    if method_name is not None and blob.get("method") != method_name:
+        raise ValueError(f"{what} of method '{blob.get('method')}', expected '{method_name}'")
+    model = build(**blob["config"]).to(device)
+    model.load_state_dict(blob["state_dict"])
+    model.eval()
+    return model, blob
+
+
+def model_to_bytes(model, budget: Budget, method_name: str, final_loss: float) -> bytes:
+    """``torch.save`` bytes of ``{'state_dict', 'config' (network), 'budget', 'method', 'final_loss'}``."""
+    return weights_to_bytes(model, asdict(get_budget(budget)), method_name, final_loss)
 
 
 def model_from_bytes(data: bytes, device=None, method_name: str | None = None):
@@ -308,11 +336,5 @@ def model_from_bytes(data: bytes, device=None, method_name: str | None = None):
     The network is rebuilt from the stored ``model.config`` (any backbone; a config without
     ``backbone``, as every MLP's, is an MLP). ``method_name``, when given, must match the stored one
     (a clear ValueError otherwise)."""
-    device = get_device(device)
-    blob = torch.load(io.BytesIO(data), map_location=device, weights_only=False)
-    if method_name is not None and blob.get("method") != method_name:
-        raise ValueError(f"weights of method '{blob.get('method')}', expected '{method_name}'")
-    model = make_network(**blob["config"]).to(device)
-    model.load_state_dict(blob["state_dict"])
-    model.eval()
+    model, blob = weights_from_bytes(data, make_network, device, method_name)
     return model, float(blob["final_loss"])

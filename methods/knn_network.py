@@ -285,6 +285,13 @@ class KNNBudget:
     query points for ``udf-knn``/``occ-knn``), so a batch holds ``shapes_per_batch x samples_per_item``
     samples. AdamW at the constant ``lr`` with ``weight_decay`` (the paper states no decay: torch's
     default 0.01). ``log_every``: steps between loss reports.
+
+    The training set (:mod:`methods.knn_training`): ``training_shapes`` built-in parts (plus any
+    extra mesh folders the caller adds); per training shape a pool of ``pool_samples`` labelled
+    samples (the shared sampler, SPEC section 3, labelled by the exact fields) and a pool of
+    ``pool_points`` surface points, from which each item draws its ``samples_per_item`` samples
+    (with replacement) and its ``points_per_item`` input points (without replacement, so
+    ``pool_points >= points_per_item``).
     """
 
     name: str
@@ -300,16 +307,22 @@ class KNNBudget:
     lr: float = 1e-3
     weight_decay: float = 0.01
     log_every: int = 100
+    training_shapes: int = 100
+    pool_samples: int = 1_000_000
+    pool_points: int = 1_000_000
 
     def __post_init__(self):
         for field in ("k", "encoder_width", "head_width", "steps", "shapes_per_batch", "samples_per_item",
-                      "points_per_item", "log_every"):
+                      "points_per_item", "log_every", "training_shapes", "pool_samples", "pool_points"):
             if int(getattr(self, field)) < 1:
                 raise ValueError(f"knn budget '{self.name}': {field} must be >= 1, got {getattr(self, field)}")
         if self.encoder_depth < 0 or self.head_depth < 0:
             raise ValueError(f"knn budget '{self.name}': depths must be >= 0")
         if self.points_per_item < self.k:
             raise ValueError(f"knn budget '{self.name}': points_per_item {self.points_per_item} < k {self.k}")
+        if self.pool_points < self.points_per_item:
+            raise ValueError(f"knn budget '{self.name}': pool_points {self.pool_points} < points_per_item "
+                             f"{self.points_per_item} (an item's cloud is drawn without replacement)")
         if not self.lr > 0 or self.weight_decay < 0:
             raise ValueError(f"knn budget '{self.name}': lr must be > 0 and weight_decay >= 0")
 
@@ -324,7 +337,8 @@ class KNNBudget:
 
 #: *paper* = SPEC section 10 (K = 20; encoders 4 -> 256, 4 x 256, 256 -> 256; head 512 -> 256,
 #: 4 x 256, 256 -> out; batches of 4 shapes x 5,120 samples, each item with 40k input points;
-#: AdamW 1e-3 constant, 10k steps; GPU scale).
+#: AdamW 1e-3 constant, 10k steps; 100 training shapes, 1M labelled samples and 1M surface points
+#: each; GPU scale).
 #: *cpu* = the budget of a 2-core run: one learned method trains in <= ~20 min. Same K and input
 #: cloud size as the paper (the local encoder sees the neighbourhood density it is tested at), a
 #: network of width 64 with 2 hidden layers in each encoder and in the head, batches of 4 shapes x
@@ -332,14 +346,27 @@ class KNNBudget:
 #: SPEC section 5, backward, AdamW) took 0.47-0.63 s on one thread (1.6-2.1 steps/s, on a 2-core
 #: machine shared with a benchmark run), plus 0.04 s for the batch's 4 KD-tree searches (40k points,
 #: 1,024 midpoints each): 1,500 steps are 12.5-17 min; the point networks (one encoder) are cheaper.
-#: *tiny* = tests (seconds): K = 8, width 32, one hidden layer, lr 3e-3.
+#: Its training set: 24 built-in parts (8 per variant), pools of 200k labelled samples and 200k
+#: surface points per shape (1,500 steps x 4 items x 1,024 samples draw each pooled sample ~1.3
+#: times over 24 parts; a 40k cloud is a fifth of the point pool). Measured with
+#: :mod:`methods.knn_training` (one thread, shared 2-core machine): a full step with its data
+#: (4 item draws, KD-trees, gathers: 0.04-0.06 s) took 0.61 s for the segment network, 0.33 s for the
+#: point network; labelling 200k samples took 0.05-0.2 s a shape for segments, 0.5-1.5 s for the UDF
+#: and 1.6-4 s for the winding numbers of occ-knn (15 s on a 109k-face Thingi10K mesh): ~1.5 min
+#: for 24 parts + the 5 Thingi10K meshes, so the dearest method (segments, 15 min of steps) and the
+#: dearest labelling (occupancy: 8 min of steps + ~2 min of labels) both stay within ~20 min.
+#: *tiny* = tests (seconds): K = 8, width 32, one hidden layer, lr 3e-3, 4 parts, pools of 20k
+#: samples and 10k points.
 KNN_BUDGETS: Registry[KNNBudget] = Registry("knn budget")
 for _budget in (
     KNNBudget("paper", k=20, encoder_width=256, encoder_depth=4, head_width=256, head_depth=4, steps=10_000,
-              shapes_per_batch=4, samples_per_item=5_120, points_per_item=40_000, lr=1e-3, log_every=100),
+              shapes_per_batch=4, samples_per_item=5_120, points_per_item=40_000, lr=1e-3, log_every=100,
+              training_shapes=100, pool_samples=1_000_000, pool_points=1_000_000),
     KNNBudget("cpu", k=20, encoder_width=64, encoder_depth=2, head_width=64, head_depth=2, steps=1_500,
-              shapes_per_batch=4, samples_per_item=1_024, points_per_item=40_000, lr=1e-3, log_every=50),
+              shapes_per_batch=4, samples_per_item=1_024, points_per_item=40_000, lr=1e-3, log_every=50,
+              training_shapes=24, pool_samples=200_000, pool_points=200_000),
     KNNBudget("tiny", k=8, encoder_width=32, encoder_depth=1, head_width=32, head_depth=1, steps=300,
-              shapes_per_batch=2, samples_per_item=256, points_per_item=2_000, lr=3e-3, log_every=50),
+              shapes_per_batch=2, samples_per_item=256, points_per_item=2_000, lr=3e-3, log_every=50,
+              training_shapes=4, pool_samples=20_000, pool_points=10_000),
 ):
     KNN_BUDGETS.register(_budget.name, _budget)

@@ -47,3 +47,14 @@ def fakes():
         for cls in FAKES:
             stack.enter_context(METHODS.registered(cls.name, cls))
         yield
+
+
+@pytest.fixture
+def one_torch_thread():
+    """torch on one thread for one test (bit-identical reruns; the machine is shared), restored after."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
