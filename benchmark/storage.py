@@ -13,10 +13,13 @@
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import hashlib
 import os
 import tempfile
 from pathlib import Path
+from typing import Iterator
 
 #: First bytes of a checksummed cache entry (format version 1).
 MAGIC = b"SALSBENCH-ENTRY-1\n"
@@ -33,6 +36,21 @@ def cache_root(explicit: str | os.PathLike | None = None) -> Path:
         return Path(explicit).expanduser()
     env = os.environ.get("SALSBENCH_CACHE")
     return Path(env).expanduser() if env else Path.home() / ".cache" / "salsbench"
+
+
+@contextlib.contextmanager
+def exclusive_lock(path: str | os.PathLike) -> Iterator[None]:
+    """Hold an exclusive flock on ``path`` (created with its folders): works across processes and is
+    released when the holder dies. For cache entries that one job computes and others wait for."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        os.close(fd)
 
 
 def atomic_write(path: str | os.PathLike, data: bytes) -> Path:

@@ -47,8 +47,43 @@ def test_poisson_runs_as_a_reconstruct_task_end_to_end(tmp_path):
     (["--pc-points", "1000"], "apply to --task reconstruct"),
     (["--task", "reconstruct", "--pc-points", "10"], "--pc-points must be >= 100"),
     (["--task", "reconstruct", "--mode", "oracle"], "apply to --task encode"),
+    (["--task", "reconstruct", "--methods", "udf-knn", "--train-dir", "/nonexistent"], "--train-dir /nonexistent"),
+    (["--task", "reconstruct", "--methods", "udf-knn", "--no-cache"], "keep their trained networks in the cache"),
 ])
 def test_options_of_the_other_task_are_refused_with_one_line(tmp_path, capsys, args, message):
     assert main([*args, "--out", str(tmp_path / "r")]) == EXIT_REFUSED
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and message in err, err
+
+
+def test_a_learned_method_trains_once_and_later_jobs_and_runs_load_its_network(tmp_path):
+    import json
+
+    from methods.knn_network import KNN_BUDGETS, KNNBudget
+
+    budget = KNNBudget("test-knn", k=8, encoder_width=16, encoder_depth=1, head_width=16, head_depth=1, steps=20,
+                       shapes_per_batch=2, samples_per_item=256, points_per_item=2000, training_shapes=2,
+                       pool_samples=4000, pool_points=4000, log_every=10)
+    args = ["--task", "reconstruct", "--methods", "udf-knn", "poisson", "--budget", "test-knn", "--limit", "2",
+            "--grid", "24", "--pc-points", "3000", "--eval-points", "5000", "--train-dir", str(tmp_path / "extra"),
+            "--cache-dir", str(tmp_path / "cache"), "--quiet"]
+    (tmp_path / "extra").mkdir()
+    import trimesh
+
+    trimesh.creation.box(extents=(1.0, 0.6, 0.4)).export(tmp_path / "extra" / "box.ply")
+    with KNN_BUDGETS.registered("test-knn", budget):
+        assert main([*args, "--out", str(tmp_path / "a")]) == 0
+        assert main([*args, "--out", str(tmp_path / "b")]) == 0
+    a, b = pd.read_csv(tmp_path / "a" / "results.csv"), pd.read_csv(tmp_path / "b" / "results.csv")
+    learned = a[a.method == "udf-knn"]
+    assert (a.status == "ok").all() and len(learned) == 2
+    info = [json.loads(r) for r in pd.read_sql_query(
+        "SELECT info FROM jobs WHERE method = 'udf-knn' ORDER BY rowid",
+        __import__("sqlite3").connect(tmp_path / "a" / "results.db"))["info"]]
+    assert [i["trained"] for i in info] == [1, 0] and info[0]["network_key"] == info[1]["network_key"]
+    assert (b[b.method == "udf-knn"]["cache"] == "network").all()  # the second run trains nothing
+    assert np.allclose(learned["cd"].to_numpy(), b[b.method == "udf-knn"]["cd"].to_numpy())
+    assert a[a.method == "poisson"]["budget"].isna().all()  # the classic baseline trains nothing
+    record = json.loads((tmp_path / "a" / "config.json").read_text())
+    assert record["resolved"]["budget"]["name"] == "test-knn" and record["resolved"]["train_dirs"] == [
+        str((tmp_path / "extra").resolve())]

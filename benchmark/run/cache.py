@@ -28,12 +28,10 @@ from __future__ import annotations
 
 import ast
 import contextlib
-import fcntl
 import hashlib
 import importlib.util
 import io
 import json
-import os
 from functools import lru_cache
 from pathlib import Path
 from typing import Iterator
@@ -41,7 +39,7 @@ from typing import Iterator
 import numpy as np
 
 from benchmark.field_cache import FieldCache
-from benchmark.storage import CacheStats, CorruptEntry, read_checked, write_checked
+from benchmark.storage import CacheStats, CorruptEntry, exclusive_lock, read_checked, write_checked
 
 #: Top-level packages whose modules enter code digests.
 PROJECT_PACKAGES = ("benchmark", "methods", "datasets")
@@ -187,20 +185,14 @@ class RunCaches:
 
     @contextlib.contextmanager
     def fit_lock(self, method, key: str) -> Iterator[None]:
-        """Hold the exclusive lock of one weights entry (an flock, so it works across processes and
-        is released if the holder dies): a second job needing the same fit waits, then loads it."""
+        """Hold the exclusive lock of one weights entry (:func:`benchmark.storage.exclusive_lock`): a
+        second job needing the same fit waits, then loads it."""
         path = self._path("locks", f"weights_{method.name}", key, ".lock")
         if path is None:
             yield
             return
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX)
+        with exclusive_lock(path):
             yield
-        finally:
-            fcntl.flock(fd, fcntl.LOCK_UN)
-            os.close(fd)
 
     # -- meshes -----------------------------------------------------------------------------
     def load_mesh(self, method: str, key: str):

@@ -29,7 +29,7 @@ RUNS_ROOT = Path("runs")
 
 #: Command-line destination -> RunConfig field (where the names differ).
 _FIELD_OF = {"list": "list_file", "seed": "seeds", "plugin": "plugins", "method_param": "method_params",
-             "budget_param": "budget_params"}
+             "budget_param": "budget_params", "train_dir": "train_dirs"}
 #: Shipped recipes: ``benchmark/recipes/<name>.toml`` (``--recipe NAME``).
 RECIPES_DIR = Path(__file__).resolve().parent.parent / "recipes"
 
@@ -65,7 +65,9 @@ def build_parser() -> argparse.ArgumentParser:
             "a run directory holds one protocol: other settings are refused.\n\n"
             "Exit status: 0 all ok; 2 refused before any work; 3 finished with failed jobs.\n\n"
             "Regenerate tables/report from finished runs (several side by side):\n"
-            "  run_benchmark.py report RUN_DIR [RUN_DIR ...] [--out DIR]"
+            "  run_benchmark.py report RUN_DIR [RUN_DIR ...] [--out DIR]\n"
+            "Train the learned reconstruction methods' networks without evaluating:\n"
+            "  run_benchmark.py train --task reconstruct [--methods sals-knn ...] [--budget cpu]"
         ),
         epilog="Caches (exact fields, fitted weights, extracted meshes) live in $SALSBENCH_CACHE or "
                "~/.cache/salsbench. SALSBENCH_DEVICE=cpu|cuda forces the torch device.",
@@ -80,6 +82,9 @@ def build_parser() -> argparse.ArgumentParser:
            f">= {MIN_PC_POINTS})")
     a("--pc-noise", dest="pc_noise", type=float, metavar="SIGMA",
       help="reconstruct task: Gaussian noise sigma added to the input points, canonical units (default 0)")
+    a("--train-dir", dest="train_dir", action="append", metavar="DIR",
+      help="reconstruct task: a folder of extra training meshes for the learned methods (repeatable; default: "
+           "../shared/data/thingi10k where it exists); the built-in training parts are always included")
     a("--methods", nargs="+", metavar="METHOD", help="methods to run (default: every registered method)")
     a("--dataset", metavar="NAME", help="dataset: builtin (default; 4 generated CAD-like shapes, no download), "
                                         "abc, abc-nonmanifold, meshes (any folder of mesh files)")
@@ -189,6 +194,8 @@ def _overrides(args: argparse.Namespace, plugins: Sequence[str]) -> dict[str, An
     for key in ("data_dir", "list_file", "cache_dir"):
         if key in given:
             given[key] = str(Path(given[key]).expanduser().resolve())
+    if "train_dirs" in given:
+        given["train_dirs"] = tuple(str(Path(d).expanduser().resolve()) for d in given["train_dirs"])
     if "method_params" in given:
         given["method_params"] = parse_method_params(given["method_params"], given.get("plugins", plugins))
     if "budget_params" in given:
@@ -257,12 +264,13 @@ def out_dir_of(args: argparse.Namespace) -> Path:
     return RUNS_ROOT / _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
 
 
-def configure(args: argparse.Namespace, run_dir: Path) -> RunConfig:
-    """The configuration of this invocation (module docstring), checked against the directory's.
+def configure(args: argparse.Namespace, run_dir: Path | None) -> RunConfig:
+    """The configuration of this invocation (module docstring), checked against the directory's
+    (``run_dir`` None: no run directory, as for ``train``).
 
     Called with the directory locked, so no other driver changes config.json meanwhile.
     """
-    saved = saved_config(run_dir)
+    saved = saved_config(run_dir) if run_dir is not None else None
     if args.resume and (args.config or args.recipe):
         raise ConfigError("--resume continues a run with its saved config.json; --config/--recipe start a new "
                           "one: give one")
@@ -295,6 +303,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         from benchmark.run.report_cli import report_main
 
         return report_main(argv[1:])
+    if argv and argv[0] == "train":
+        return train_main(argv[1:])
     args = build_parser().parse_args(argv)
     try:
         out = out_dir_of(args)
@@ -313,6 +323,45 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"run_benchmark.py: error: {exc}", file=sys.stderr)
         return EXIT_REFUSED
     return EXIT_OK if outcome.failed == 0 else EXIT_FAILED_TASKS
+
+
+def train_main(argv: Sequence[str]) -> int:
+    """``run_benchmark.py train --task reconstruct [--methods ...] [--budget B]``: train (or find in
+    the cache) the network of every learned method of the plan, without evaluating anything."""
+    args = build_parser().parse_args(list(argv))
+    try:
+        if args.out or args.resume:
+            raise ConfigError("train writes no run directory: --out/--resume do not apply")
+        plan = resolve(configure(args, None))
+        from methods.base import get_method
+
+        learned = [m for m in plan.methods if getattr(get_method(m), "learned", False)]
+        if not learned:
+            raise ConfigError(f"train: none of {', '.join(plan.methods)} is a learned method "
+                              f"(use --task reconstruct and e.g. --methods sals-knn)")
+    except ConfigError as exc:
+        print(f"run_benchmark.py: error: {exc}", file=sys.stderr)
+        return EXIT_REFUSED
+    from tqdm import tqdm
+
+    from benchmark.run.tasks import cache_root_of
+    from benchmark.run.training import trained_network
+
+    for name in learned:
+        bar = tqdm(total=plan.budget.steps, desc=f"train {name} ({plan.budget.name})", disable=plan.config.quiet)
+
+        def progress(step, loss, bar=bar):
+            bar.update(step - bar.n)
+            bar.set_postfix(loss=f"{loss:.4g}")
+
+        _, facts = trained_network(get_method(name, **plan.method_params[name]), plan.budget, plan.train_dirs,
+                                   cache_root_of(plan.config), progress=progress)
+        bar.close()
+        how = (f"trained in {facts['train_loop_s']:.0f} s, final loss {facts['train_final_loss']:.4g}"
+               if facts["trained"] else "found in the cache")
+        print(f"salsbench: {name}: network {facts['network_key']} on {facts['training_shapes']} training shapes "
+              f"{how}", file=sys.stderr, flush=True)
+    return EXIT_OK
 
 
 def _plan(args: argparse.Namespace, out: Path):

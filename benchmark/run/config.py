@@ -89,6 +89,8 @@ class RunConfig:
     checkpoints: tuple[float, ...] = _f((), "identity", "fractions of the fit at which the network is scored too")
     pc_points: int = _f(DEFAULT_PC_POINTS, "identity", "points of the input cloud (reconstruct task)")
     pc_noise: float = _f(0.0, "identity", "Gaussian noise sigma of the input points, canonical units (reconstruct)")
+    train_dirs: tuple[str, ...] | None = _f(None, "identity", "extra training meshes of the learned reconstruction "
+                                                         "methods (None: the shared Thingi10K folder if present)")
     budget_params: Mapping[str, Any] = _f({}, "identity", "overrides of the budget's values (neural mode)")
     sweep: Mapping[str, tuple] = _f({}, "identity", "swept settings, {key: values} (cross product)")
     ceiling: bool = _f(True, "identity", "a neural sweep also runs the same sweep in oracle mode")
@@ -109,10 +111,9 @@ class RunConfig:
     def __post_init__(self):
         for f in dataclasses.fields(self):
             object.__setattr__(self, f.name, _coerce(f, getattr(self, f.name)))
-        if self.task == "reconstruct" and self.budget is not None:
-            object.__setattr__(self, "budget", None)  # the classic reconstruction methods fit nothing
-        elif self.task == "reconstruct":
-            pass
+        if self.task == "reconstruct":
+            if self.budget is None:
+                object.__setattr__(self, "budget", "cpu")  # the training budget of the learned methods
         elif self.mode == "oracle" and self.budget is not None:
             object.__setattr__(self, "budget", None)  # oracle mode fits nothing: no budget in the protocol
         elif self.mode == "neural" and self.budget is None:
@@ -352,11 +353,13 @@ class Plan:
     shapes: tuple[str, ...]
     sweep: dict[str, tuple] = field(default_factory=dict)
     variants: tuple["Variant", ...] = ()
+    train_dirs: tuple[str, ...] = ()
 
     def record(self) -> dict[str, Any]:
         """The resolved facts for config.json (JSON-ready)."""
         return {"methods": list(self.methods), "method_params": self.method_params,
                 "sweep": {k: list(v) for k, v in self.sweep.items()}, "sweep_keys": list(self.sweep),
+                "train_dirs": list(self.train_dirs),
                 "budget": dataclasses.asdict(self.budget) if self.budget is not None else None,
                 "metric_preset": self.preset.to_dict(), "eval_points": self.eval_points,
                 "protocol": self.preset.describe(self.eval_points),
@@ -390,7 +393,6 @@ def resolve(config: RunConfig) -> Plan:
             raise ConfigError(f"--plugin {name}: cannot load ({type(exc).__name__}: {exc})") from None
     from benchmark.metrics import PRESETS
     from methods.base import METHODS, available_methods
-    from methods.fitting import get_budget
     from methods.params import ParamError
 
     try:
@@ -403,7 +405,7 @@ def resolve(config: RunConfig) -> Plan:
             if m not in methods:
                 raise ConfigError(f"--method-param names method '{m}', which is not in --methods ({', '.join(methods)})")
         params = {m: METHODS.get(m)(**config.method_params.get(m, {})).params for m in methods}
-        budget = get_budget(config.budget, config.budget_params) if config.budget is not None else None
+        budget = _budget(config, methods)
         if config.metric_preset not in PRESETS:
             raise ConfigError(f"unknown metric preset '{config.metric_preset}'; known metric presets: "
                               f"{', '.join(PRESETS)}")
@@ -430,7 +432,41 @@ def resolve(config: RunConfig) -> Plan:
         raise ConfigError(f"dataset '{config.dataset}' has no shapes with these options ({options or 'none'})")
     n = config.eval_points if config.eval_points is not None else preset.n_points
     sweep, variants = _variants(config, methods)
-    return Plan(config, methods, params, budget, preset, int(n), options, tuple(shapes), sweep, variants)
+    train_dirs = _train_dirs(config, methods) if budget is not None and config.task == "reconstruct" else ()
+    return Plan(config, methods, params, budget, preset, int(n), options, tuple(shapes), sweep, variants, train_dirs)
+
+
+def _train_dirs(config: RunConfig, methods: tuple[str, ...]) -> tuple[str, ...]:
+    """The extra training folders of a run with learned reconstruction methods (checked)."""
+    from benchmark.run.training import default_train_dirs
+
+    if config.no_cache:
+        raise ConfigError("--no-cache: the learned reconstruction methods keep their trained networks in the "
+                          "cache (a training takes minutes); use --cache-dir DIR for a fresh one")
+    dirs = default_train_dirs() if config.train_dirs is None else tuple(
+        _existing("--train-dir", d, "directory") for d in config.train_dirs)
+    from datasets import get_dataset
+
+    for d in dirs:
+        try:
+            get_dataset("meshes", data_dir=d).names()
+        except (ValueError, OSError) as exc:
+            raise ConfigError(f"--train-dir {d}: {str(exc).splitlines()[0]}") from None
+    return dirs
+
+
+def _budget(config: RunConfig, methods: tuple[str, ...]):
+    """The plan's budget: the per-shape fitting budget (encode, neural mode), the training budget of
+    the learned methods (reconstruct, :data:`methods.knn_network.KNN_BUDGETS`), else None."""
+    from methods.base import METHODS
+    from methods.fitting import get_budget
+
+    if config.task == "reconstruct":
+        from methods.knn_network import KNN_BUDGETS
+
+        learned = any(getattr(METHODS.get(m), "learned", False) for m in methods)
+        return KNN_BUDGETS.get(config.budget) if learned else None
+    return get_budget(config.budget, config.budget_params) if config.mode == "neural" else None
 
 
 def _variants(config: RunConfig, methods: tuple[str, ...]) -> tuple[dict[str, tuple], tuple[Variant, ...]]:
@@ -439,7 +475,6 @@ def _variants(config: RunConfig, methods: tuple[str, ...]) -> tuple[dict[str, tu
     RunConfig checks (grid memory, ranges) and the method/budget checks apply to every value."""
     from benchmark.run import sweep as sweeps
     from methods.base import METHODS
-    from methods.fitting import get_budget
     from methods.params import ParamError
 
     typed = sweeps.typed_sweep(config.sweep, methods, config.mode)
@@ -469,8 +504,7 @@ def _variants(config: RunConfig, methods: tuple[str, ...]) -> tuple[dict[str, tu
             cfg = dataclasses.replace(config, **{"sweep": {}, "mode": mode, "method_params": method_params,
                                                  "budget_params": budget_params, **run})
             try:
-                if cfg.budget is not None:
-                    get_budget(cfg.budget, cfg.budget_params)
+                _budget(cfg, methods)
                 params = {m: METHODS.get(m)(**cfg.method_params.get(m, {})).params for m in methods}
             except (ParamError, ValueError) as exc:
                 where = f"--sweep point {sweeps.variant_tag(values)}: " if values else ""

@@ -10,8 +10,9 @@ shape; neural mode: ``sample`` (the shared sampler), ``label`` (``method.trainin
 exact fields), ``fit`` (``methods.fitting.fit``, or cached weights), ``query`` (``method.neural_grid``);
 oracle mode: ``query`` (``method.oracle_grid`` on the exact fields); then ``extract``
 (``method.extract``) and ``metrics`` (``benchmark.metrics.evaluate`` against the GT). A job of the
-``reconstruct`` task: ``load``, ``sample`` (the input point cloud, :func:`input_point_cloud`),
-``reconstruct`` (``PointCloudMethod.reconstruct``), ``metrics``. Randomness comes from
+``reconstruct`` task: ``load``, for a learned method ``network`` (its network, trained once across
+shapes or loaded: :mod:`benchmark.run.training`), ``sample`` (the input point cloud,
+:func:`input_point_cloud`), ``reconstruct`` (``PointCloudMethod.reconstruct``), ``metrics``. Randomness comes from
 :func:`benchmark.seeding.job_streams` of (shape content hash, seed).
 """
 
@@ -325,12 +326,26 @@ def _reconstruct_body(spec: JobSpec, shape, device, timer: StageTimer, result: T
     from methods.base import get_method
 
     method = get_method(spec.method, **spec.params)
+    network = {}
+    if spec.budget is not None:  # a learned method: its network, trained once across shapes (cached)
+        from benchmark.run.training import trained_network
+        from methods.knn_training import get_knn_budget
+
+        report("training")
+        stats = CacheStats()
+        with stage("network"):
+            network["model"], facts = trained_network(method, get_knn_budget(spec.budget), spec.train_dirs,
+                                                      spec.cache_dir, device, stats=stats,
+                                                      progress=lambda step, loss: report("training", step=step,
+                                                                                         loss=loss))
+        result.info.update(facts)
+        result.cache, result.cache_rejected = list(stats.hits), list(stats.rejected)
     report("sampling")
     with stage("sample"):
         points = input_point_cloud(shape, spec.pc_points, spec.pc_noise, spec.seed)
     report("reconstructing")
     with stage("reconstruct"):
-        extraction = method.reconstruct(points, spec.grid, device)
+        extraction = method.reconstruct(points, spec.grid, device, **network)
     result.info.update({k: v for k, v in extraction.info.items() if isinstance(v, (int, float, str, bool))})
     _score(metrics.evaluate, spec, shape, np.asarray(extraction.vertices, dtype=np.float64),
            np.asarray(extraction.faces, dtype=np.int64), result, report)

@@ -100,6 +100,7 @@ class JobSpec(TaskSpec):
     task: str = "encode"
     pc_points: int | None = None
     pc_noise: float | None = None
+    train_dirs: tuple[str, ...] = ()
 
     kind = "job"
 
@@ -110,6 +111,8 @@ class JobSpec(TaskSpec):
             ident["budget_params"] = dict(sorted(self.budget_params.items()))
         if self.task != "encode":  # likewise: encode jobs keep the keys they always had
             ident.update(task=self.task, pc_points=self.pc_points, pc_noise=self.pc_noise)
+            if self.budget is not None:  # a learned method: its training set is part of what it computes
+                ident["train_dirs"] = list(self.train_dirs)
         return ident
 
     def fit_identity(self) -> str | None:
@@ -135,6 +138,7 @@ def build_tasks(plan) -> tuple[list[FloorSpec], list[JobSpec]]:
     """Floor tasks (one per shape and evaluation sample count, first seed) and jobs (shapes x sweep
     points x methods x seeds, table order; a job that several sweep points share appears once)."""
     from benchmark.run.sweep import variant_tag
+    from methods.base import METHODS
 
     c = plan.config
     common = dict(dataset=c.dataset, dataset_options=plan.dataset_options, metric_preset=c.metric_preset,
@@ -154,10 +158,12 @@ def build_tasks(plan) -> tuple[list[FloorSpec], list[JobSpec]]:
                 if vc.mode != c.mode:
                     tag = f"{vc.mode}" + (f",{tag}" if tag else "")
                 for seed in vc.seeds:
+                    trains = vc.task == "encode" or getattr(METHODS.get(m), "learned", False)
+                    extra = {**reconstruct, "train_dirs": plan.train_dirs} if reconstruct and trains else reconstruct
                     job = JobSpec(shape=s, seed=seed, method=m, params=v.method_params[m], mode=vc.mode,
-                                  budget=vc.budget, budget_params=dict(vc.budget_params), grid=vc.grid,
+                                  budget=vc.budget if trains else None, budget_params=dict(vc.budget_params), grid=vc.grid,
                                   eval_points=vc.eval_points, checkpoints=vc.checkpoints, cache_dir=cache_dir,
-                                  sweep=values, variant=tag, task=vc.task, **reconstruct, **common)
+                                  sweep=values, variant=tag, task=vc.task, **extra, **common)
                     jobs.setdefault(job.key, job)
     return list(floors.values()), list(jobs.values())
 

@@ -1,0 +1,81 @@
+"""The trained networks of the reconstruct task's learned methods: trained once per (training set,
+method, budget, code), cached, shared by every job and run that needs them.
+
+Training set: :func:`methods.knn_training.training_shapes` with the budget's ``training_shapes``
+built-in parts (generator seed :data:`methods.knn_training.DEFAULT_TRAINING_SEED`, disjoint from every
+built-in test shape by construction and by hash) plus every mesh of the run's ``train_dirs`` (by
+default the Thingi10K folder of ``../shared/data`` where it exists). Cache key: the training set's
+digest (content hashes and names), the method, every budget value, the training seed and the code
+digest of the method's module and the training loop (:func:`benchmark.run.cache.code_digest`).
+Entries: ``<cache root>/knn_weights/<method>_<key>.pt``, written with a checksum; a job that needs a
+network another job is training waits on the entry's lock (``locks/``) and then loads it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from functools import lru_cache
+from pathlib import Path
+from typing import Callable
+
+from benchmark.run.tasks import digest
+from benchmark.storage import CacheStats, CorruptEntry, exclusive_lock, read_checked, write_checked
+
+REPO = Path(__file__).resolve().parents[2]
+#: Extra training meshes used when a run names none: the Thingi10K meshes of ../shared/data.
+DEFAULT_TRAIN_DIR = REPO.parent / "shared" / "data" / "thingi10k"
+
+
+def default_train_dirs() -> tuple[str, ...]:
+    """The default extra training folders: the shared Thingi10K folder where it exists, else none."""
+    return (str(DEFAULT_TRAIN_DIR.resolve()),) if DEFAULT_TRAIN_DIR.is_dir() else ()
+
+
+@lru_cache(maxsize=4)
+def _shapes(count: int, dirs: tuple[str, ...]):
+    from methods.knn_training import DEFAULT_TRAINING_SEED, training_shapes
+
+    return tuple(training_shapes(count=count, seed=DEFAULT_TRAINING_SEED, extra_dirs=[Path(d) for d in dirs]))
+
+
+def network_key(method, budget, train_dirs: tuple[str, ...]) -> tuple[str, tuple]:
+    """(cache key, training shapes) of the network ``method`` trains at ``budget``."""
+    from benchmark.run.cache import code_digest
+    from methods.knn_training import DEFAULT_TRAINING_SEED, training_set_digest
+
+    shapes = _shapes(budget.training_shapes, tuple(train_dirs))
+    key = digest({"training_set": training_set_digest(shapes), "method": method.name,
+                  "budget": dataclasses.asdict(budget), "seed": DEFAULT_TRAINING_SEED,
+                  "code": code_digest(type(method).__module__, "methods.knn_training")})
+    return key, shapes
+
+
+def trained_network(method, budget, train_dirs: tuple[str, ...], cache_root: str | Path, device=None,
+                    progress: Callable[..., None] | None = None, stats: CacheStats | None = None):
+    """(model in eval mode with ``knn_k`` set, facts) of ``method`` at ``budget``: from the cache, or
+    trained now (and cached). Facts: ``network_key``, ``trained`` (1 if trained here), and after a
+    training ``train_steps``, ``train_loop_s``, ``train_samples_per_s``, ``train_final_loss``."""
+    from methods import knn_training
+
+    key, shapes = network_key(method, budget, train_dirs)
+    root = Path(cache_root)
+    path = root / "knn_weights" / f"{method.name}_{key}.pt"
+    facts = {"network_key": key, "trained": 0, "training_shapes": len(shapes)}
+    with exclusive_lock(root / "locks" / f"knn_weights_{method.name}_{key}.lock"):
+        try:
+            data = read_checked(path)
+        except CorruptEntry as exc:
+            if stats is not None:
+                stats.reject(exc)
+            data = None
+        if data is not None:
+            if stats is not None:
+                stats.hit("network")
+            model, _ = knn_training.knn_model_from_bytes(data, device=device, method_name=method.name)
+            return model, facts
+        result = knn_training.train(method, list(shapes), budget, seed=knn_training.DEFAULT_TRAINING_SEED,
+                                    device=device, progress=progress)
+        write_checked(path, knn_training.knn_model_to_bytes(result.model, budget, method.name, result.final_loss))
+    facts.update(trained=1, train_steps=result.steps, train_loop_s=result.seconds,
+                 train_samples_per_s=result.samples_per_s, train_final_loss=result.final_loss)
+    return result.model, facts
