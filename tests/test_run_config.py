@@ -7,7 +7,8 @@ import json
 
 import pytest
 
-from benchmark.run.config import ConfigError, RunConfig, grid_memory_bytes, machine_memory_bytes, resolve
+from benchmark.run.config import ConfigError, RunConfig, grid_memory_bytes, machine_memory_bytes
+from benchmark.run.plan import resolve
 
 
 def test_defaults_round_trip_through_json():

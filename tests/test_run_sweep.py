@@ -18,7 +18,7 @@ import pandas as pd
 import pytest
 
 from benchmark.run.cli import EXIT_REFUSED, build_parser, configure, main, recipe_names
-from benchmark.run.config import resolve
+from benchmark.run.plan import resolve
 from benchmark.run.sweep import variants
 from tests.fake_methods import PLUGIN
 from tests.kill_run import kill_after_ok_jobs

@@ -20,7 +20,8 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from benchmark.run.config import (DEFAULT_PC_POINTS, MIN_EVAL_POINTS, MIN_GRID, MIN_PC_POINTS, MODES, TASKS, ConfigError,
-                                  RunConfig, import_plugins, resolve)
+                                  RunConfig, import_plugins)
+from benchmark.run.plan import resolve
 from benchmark.run.records import SchemaMismatch
 from benchmark.run.rundir import RunDirectory, check_writable_dir, saved_config
 

@@ -15,7 +15,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from benchmark.run.config import Plan
+from benchmark.run.plan import Plan
 from benchmark.run.job import TaskResult, failed_from_exception, now_iso, run_task
 from benchmark.run.records import ResultsDB
 from benchmark.run.rundir import RunDirectory

@@ -1,0 +1,206 @@
+"""Resolution of a run configuration: :func:`resolve` turns a :class:`benchmark.run.config.RunConfig`
+into a :class:`Plan` (plugins imported, method and parameter names checked against the registry,
+budgets looked up, the sweep typed and expanded into validated :class:`Variant` points, the dataset
+built and its shapes listed). Every check raises :class:`benchmark.run.config.ConfigError` with one
+line, before any work starts.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from benchmark.run.config import ConfigError, RunConfig, import_plugins
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One point of a sweep (or the whole run when nothing is swept).
+
+    values : {sweep key: value} of this point (empty without a sweep). config : the run's config
+    with those values applied (and validated by :class:`RunConfig` itself); for a ceiling variant
+    the same in oracle mode. method_params : full, typed parameters per method. keys : the
+    :class:`benchmark.run.sweep.SweepKey` of each swept key. first : the sweep's first point in the
+    run's own mode (its meshes keep the plain file names the gallery reads).
+    """
+
+    values: dict[str, Any]
+    config: RunConfig
+    method_params: dict[str, dict[str, Any]]
+    keys: dict[str, Any]
+    first: bool
+
+    def applicable(self, method: str) -> dict[str, Any]:
+        """The values of the keys a job of ``method`` in this variant's mode depends on."""
+        return {k: v for k, v in self.values.items() if self.keys[k].applies_to(method, self.config.mode)}
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A resolved run: every name looked up, every parameter typed, the shapes listed.
+
+    methods : names in display order. method_params : full, typed parameters per method.
+    budget : the fitting budget (None in oracle mode). preset : the metric preset.
+    eval_points : effective metric samples per mesh. dataset_options : how workers build the dataset.
+    shapes : shape names in dataset order.
+    """
+
+    config: RunConfig
+    methods: tuple[str, ...]
+    method_params: dict[str, dict[str, Any]]
+    budget: Any
+    preset: Any
+    eval_points: int
+    dataset_options: dict[str, Any]
+    shapes: tuple[str, ...]
+    sweep: dict[str, tuple] = field(default_factory=dict)
+    variants: tuple["Variant", ...] = ()
+    train_dirs: tuple[str, ...] = ()
+
+    def record(self) -> dict[str, Any]:
+        """The resolved facts for config.json (JSON-ready)."""
+        return {"methods": list(self.methods), "method_params": self.method_params,
+                "sweep": {k: list(v) for k, v in self.sweep.items()}, "sweep_keys": list(self.sweep),
+                "train_dirs": list(self.train_dirs),
+                "budget": dataclasses.asdict(self.budget) if self.budget is not None else None,
+                "metric_preset": self.preset.to_dict(), "eval_points": self.eval_points,
+                "protocol": self.preset.describe(self.eval_points),
+                "dataset_options": self.dataset_options, "shapes": list(self.shapes)}
+
+
+def _existing(flag: str, value: str, kind: str) -> str:
+    path = Path(value).expanduser()
+    if not (path.is_dir() if kind == "directory" else path.is_file()):
+        raise ConfigError(f"{flag} {value}: {'not a ' + kind if path.exists() else 'does not exist'}")
+    return str(path.resolve())
+
+
+def resolve(config: RunConfig) -> Plan:
+    """Look up every name of ``config`` and list the shapes (no mesh is read); ConfigError on a problem."""
+    for name in config.plugins:
+        try:
+            import_plugins([name])
+        except (ImportError, AttributeError) as exc:
+            raise ConfigError(f"--plugin {name}: cannot load ({type(exc).__name__}: {exc})") from None
+    from benchmark.metrics import PRESETS
+    from methods.base import METHODS, available_methods
+    from methods.params import ParamError
+
+    try:
+        methods = tuple(config.methods) or tuple(available_methods(config.task))
+        for m in methods:
+            if METHODS.get(m).task != config.task:
+                raise ConfigError(f"method '{m}' belongs to the {METHODS.get(m).task} task, not to --task "
+                                  f"{config.task} (its methods: {', '.join(available_methods(config.task))})")
+        for m in config.method_params:
+            if m not in methods:
+                raise ConfigError(f"--method-param names method '{m}', which is not in --methods ({', '.join(methods)})")
+        params = {m: METHODS.get(m)(**config.method_params.get(m, {})).params for m in methods}
+        budget = _budget(config, methods)
+        if config.metric_preset not in PRESETS:
+            raise ConfigError(f"unknown metric preset '{config.metric_preset}'; known metric presets: "
+                              f"{', '.join(PRESETS)}")
+        preset = PRESETS[config.metric_preset]
+    except (ParamError, ValueError) as exc:
+        raise ConfigError(str(exc).splitlines()[0]) from None
+    if config.executor == "ray":
+        try:
+            import ray  # noqa: F401
+        except ImportError:
+            raise ConfigError("--executor ray needs the optional package ray: pip install '.[ray]'") from None
+    options: dict[str, Any] = {}
+    if config.data_dir is not None:
+        options["data_dir"] = _existing("--data-dir", config.data_dir, "directory")
+    if config.list_file is not None:
+        options["list_file"] = _existing("--list", config.list_file, "file")
+    from benchmark.run.tasks import load_dataset
+
+    try:
+        shapes = list(load_dataset(config.dataset, options).names())[: config.limit]
+    except (ValueError, OSError) as exc:  # DatasetError is a ValueError
+        raise ConfigError(str(exc).splitlines()[0] if str(exc) else type(exc).__name__) from None
+    if not shapes:
+        raise ConfigError(f"dataset '{config.dataset}' has no shapes with these options ({options or 'none'})")
+    n = config.eval_points if config.eval_points is not None else preset.n_points
+    sweep, variants = _variants(config, methods)
+    train_dirs = _train_dirs(config, methods) if budget is not None and config.task == "reconstruct" else ()
+    return Plan(config, methods, params, budget, preset, int(n), options, tuple(shapes), sweep, variants, train_dirs)
+
+
+def _train_dirs(config: RunConfig, methods: tuple[str, ...]) -> tuple[str, ...]:
+    """The extra training folders of a run with learned reconstruction methods (checked)."""
+    from benchmark.run.training import default_train_dirs
+
+    if config.no_cache:
+        raise ConfigError("--no-cache: the learned reconstruction methods keep their trained networks in the "
+                          "cache (a training takes minutes); use --cache-dir DIR for a fresh one")
+    dirs = default_train_dirs() if config.train_dirs is None else tuple(
+        _existing("--train-dir", d, "directory") for d in config.train_dirs)
+    from datasets import get_dataset
+
+    for d in dirs:
+        try:
+            get_dataset("meshes", data_dir=d).names()
+        except (ValueError, OSError) as exc:
+            raise ConfigError(f"--train-dir {d}: {str(exc).splitlines()[0]}") from None
+    return dirs
+
+
+def _budget(config: RunConfig, methods: tuple[str, ...]):
+    """The plan's budget: the per-shape fitting budget (encode, neural mode), the training budget of
+    the learned methods (reconstruct, :data:`methods.knn_network.KNN_BUDGETS`), else None."""
+    from methods.base import METHODS
+    from methods.fitting import get_budget
+
+    if config.task == "reconstruct":
+        from methods.knn_network import KNN_BUDGETS
+
+        learned = any(getattr(METHODS.get(m), "learned", False) for m in methods)
+        return KNN_BUDGETS.get(config.budget) if learned else None
+    return get_budget(config.budget, config.budget_params) if config.mode == "neural" else None
+
+
+def _variants(config: RunConfig, methods: tuple[str, ...]) -> tuple[dict[str, tuple], tuple[Variant, ...]]:
+    """The typed sweep and its points: every combination in the run's mode, then (a neural sweep
+    with ``ceiling``) the same combinations in oracle mode. Each point's config is rebuilt, so the
+    RunConfig checks (grid memory, ranges) and the method/budget checks apply to every value."""
+    from benchmark.run import sweep as sweeps
+    from methods.base import METHODS
+    from methods.params import ParamError
+
+    typed = sweeps.typed_sweep(config.sweep, methods, config.mode)
+    keys = {k: sweeps.sweep_key(k, methods, config.mode) for k in typed}
+    for name, key in keys.items():
+        given = config.method_params.get(key.method, {}) if key.kind == "method" else (
+            config.budget_params if key.kind == "budget" else {})
+        if key.target in given:
+            raise ConfigError(f"--sweep {name} and a fixed value of the same setting are both given: give one")
+    ceiling = typed and config.ceiling and config.mode == "neural" and config.task == "encode"
+    modes = [config.mode] + (["oracle"] if ceiling else [])
+    out = []
+    for mode in modes:
+        for i, values in enumerate(sweeps.variants(typed)):
+            run = {keys[k].target: v for k, v in values.items() if keys[k].kind == "run" and k != "seed"}
+            if "seed" in values:
+                run["seeds"] = (values["seed"],)
+            budget_params = {**config.budget_params,
+                             **{keys[k].target: v for k, v in values.items() if keys[k].kind == "budget"}}
+            method_params = {m: dict(p) for m, p in config.method_params.items()}
+            for k, v in values.items():
+                if keys[k].kind == "method" and keys[k].applies_to(keys[k].method, mode):
+                    method_params.setdefault(keys[k].method, {})[keys[k].target] = v
+            neural = mode == "neural"
+            if not neural:
+                run.update(budget=None, budget_params={}, checkpoints=())
+            cfg = dataclasses.replace(config, **{"sweep": {}, "mode": mode, "method_params": method_params,
+                                                 "budget_params": budget_params, **run})
+            try:
+                _budget(cfg, methods)
+                params = {m: METHODS.get(m)(**cfg.method_params.get(m, {})).params for m in methods}
+            except (ParamError, ValueError) as exc:
+                where = f"--sweep point {sweeps.variant_tag(values)}: " if values else ""
+                raise ConfigError(where + str(exc).splitlines()[0]) from None
+            out.append(Variant(values, cfg, params, keys, first=(i == 0 and mode == config.mode)))
+    return typed, tuple(out)
