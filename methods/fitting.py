@@ -22,7 +22,7 @@ from __future__ import annotations
 import io
 import math
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from typing import Callable, Sequence
 
 import numpy as np
@@ -31,7 +31,7 @@ import torch
 from benchmark.registry import Registry
 from methods.device import get_device, seeded_generator, synchronize
 from methods.network import BACKBONES, GridNetwork, make_network
-from methods.params import Param, ParamError
+from methods.params import Param, with_overrides
 
 
 class FittingError(RuntimeError):
@@ -155,14 +155,7 @@ def get_budget(budget: str | Budget, overrides: dict | None = None) -> Budget:
     (typed, range-checked); unknown names list the known ones. The overridden budget keeps its
     name: every value is in :func:`dataclasses.asdict` of it, which keys the weights cache."""
     base = budget if isinstance(budget, Budget) else BUDGETS.get(budget)
-    if not overrides:
-        return base
-    unknown = sorted(set(overrides) - set(BUDGET_PARAMS))
-    if unknown:
-        raise ParamError(f"budget has no setting '{unknown[0]}' that a run may change; known: "
-                         f"{', '.join(sorted(BUDGET_PARAMS))}")
-    typed = {k: BUDGET_PARAMS[k].parse(v, f"budget.{k}") for k, v in overrides.items()}
-    return replace(base, **typed)
+    return with_overrides(base, overrides, BUDGET_PARAMS, "budget")
 
 
 def checked_loss(losses: torch.Tensor, end: int, every: int, where: Callable[[int], str]) -> float:

@@ -60,11 +60,12 @@ from pykdtree.kdtree import KDTree
 from torch import nn
 
 from benchmark.registry import Registry
+from methods.params import Param
 from methods.network import OUTPUT_INIT_SCALE
 
 __all__ = ["NEGATIVE_SLOPE", "KINDS", "knn_neighbourhoods", "segment_neighbourhoods", "LocalEncoder",
            "RegressionHead", "SegmentKNNNetwork", "PointKNNNetwork", "make_knn_network", "KNNBudget",
-           "KNN_BUDGETS"]
+           "KNN_BUDGETS", "KNN_BUDGET_PARAMS"]
 
 #: Slope of the LeakyReLU after every hidden layer (the paper's 0.2).
 NEGATIVE_SLOPE = 0.2
@@ -358,6 +359,23 @@ class KNNBudget:
 #: *tiny* = tests (seconds): K = 8, width 32, one hidden layer, lr 3e-3, 4 parts, pools of 20k
 #: samples and 10k points.
 KNN_BUDGETS: Registry[KNNBudget] = Registry("knn budget")
+
+#: K-NN budget values a run may override (``--budget-param``, sweep keys ``budget.NAME`` of the
+#: reconstruct task, e.g. the paper's K ablation ``budget.k=10,20,50``); typed like method parameters.
+KNN_BUDGET_PARAMS: dict[str, Param] = {
+    "k": Param(1, "neighbours per query", ge=1),
+    "steps": Param(1, "optimizer steps", ge=1),
+    "encoder_width": Param(1, "width of the local encoders", ge=1),
+    "encoder_depth": Param(1, "hidden layers of the local encoders", ge=0),
+    "head_width": Param(1, "width of the regression head", ge=1),
+    "head_depth": Param(1, "hidden layers of the regression head", ge=0),
+    "samples_per_item": Param(1, "labelled samples per shape of a batch", ge=1),
+    "points_per_item": Param(1, "input points per shape of a batch", ge=1),
+    "training_shapes": Param(1, "built-in training parts", ge=1),
+    "pool_samples": Param(1, "labelled samples per training shape", ge=1),
+    "pool_points": Param(1, "surface points per training shape", ge=1),
+    "lr": Param(1.0, "AdamW learning rate (constant)", gt=0),
+}
 for _budget in (
     KNNBudget("paper", k=20, encoder_width=256, encoder_depth=4, head_width=256, head_depth=4, steps=10_000,
               shapes_per_batch=4, samples_per_item=5_120, points_per_item=40_000, lr=1e-3, log_every=100,

@@ -94,3 +94,17 @@ class Param:
             if text in _FALSE:
                 return False
         raise ValueError
+
+
+def with_overrides(base, overrides, params: dict[str, "Param"], what: str):
+    """The frozen dataclass ``base`` with ``overrides`` applied, each typed and checked by its
+    :class:`Param` in ``params`` (named ``what.NAME`` in messages); unknown names list the known ones."""
+    import dataclasses
+
+    if not overrides:
+        return base
+    unknown = sorted(set(overrides) - set(params))
+    if unknown:
+        raise ParamError(f"{what} has no setting '{unknown[0]}' that a run may change; known: {', '.join(sorted(params))}")
+    return dataclasses.replace(base, **{k: params[k].parse(v, f"{what}.{k}") for k, v in overrides.items()})
+

@@ -87,3 +87,19 @@ def test_a_learned_method_trains_once_and_later_jobs_and_runs_load_its_network(t
     record = json.loads((tmp_path / "a" / "config.json").read_text())
     assert record["resolved"]["budget"]["name"] == "test-knn" and record["resolved"]["train_dirs"] == [
         str((tmp_path / "extra").resolve())]
+
+
+def test_the_knn_recipe_sweeps_k_over_the_learned_method_only(tmp_path):
+    from benchmark.run.cli import build_parser, configure
+    from benchmark.run.plan import resolve
+    from benchmark.run.tasks import build_tasks
+
+    args = build_parser().parse_args(["--recipe", "knn", "--methods", "sals-knn", "poisson", "--limit", "1",
+                                      "--out", str(tmp_path / "r")])
+    plan = resolve(configure(args, tmp_path / "r"))
+    _, jobs = build_tasks(plan)
+    learned = [j for j in jobs if j.method == "sals-knn"]
+    classic = [j for j in jobs if j.method == "poisson"]
+    assert len(learned) == 9 and {j.budget_params["k"] for j in learned} == {10, 20, 50}
+    assert len(classic) == 3 and all(j.budget is None and not j.budget_params for j in classic)  # one per density
+    assert {j.pc_points for j in classic} == {10_000, 40_000, 100_000}

@@ -228,10 +228,10 @@ def typed_settings(config: RunConfig) -> RunConfig:
     if not (config.budget_params or config.sweep):
         return config
     import_plugins(config.plugins)
-    from benchmark.run.sweep import typed_sweep
+    from benchmark.run.sweep import budget_parameters, typed_sweep
     from methods.base import METHODS, available_methods
-    from methods.fitting import BUDGET_PARAMS
 
+    BUDGET_PARAMS = budget_parameters(config.task)
     budget_params = {}
     for key, value in config.budget_params.items():
         if key not in BUDGET_PARAMS:
@@ -245,7 +245,7 @@ def typed_settings(config: RunConfig) -> RunConfig:
     for m in methods:
         if m not in METHODS:
             raise ConfigError(f"--methods: {METHODS.unknown(m)}")
-    sweep = typed_sweep(config.sweep, methods, config.mode)
+    sweep = typed_sweep(config.sweep, methods, config.mode, config.task)
     return dataclasses.replace(config, budget_params=budget_params, sweep=sweep)
 
 

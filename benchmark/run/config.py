@@ -157,8 +157,8 @@ class RunConfig:
         if self.task == "encode" and (self.pc_points != DEFAULT_PC_POINTS or self.pc_noise != 0):
             raise ConfigError("--pc-points and --pc-noise apply to --task reconstruct")
         if self.task == "reconstruct":
-            if self.mode != "neural" or self.checkpoints or self.budget_params:
-                raise ConfigError("--mode oracle, --checkpoints and --budget-param apply to --task encode")
+            if self.mode != "neural" or self.checkpoints:
+                raise ConfigError("--mode oracle and --checkpoints apply to --task encode")
             if self.pc_points < MIN_PC_POINTS:
                 raise ConfigError(f"--pc-points must be >= {MIN_PC_POINTS}, got {self.pc_points}")
             if not 0 <= self.pc_noise < 1:

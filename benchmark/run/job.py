@@ -334,7 +334,8 @@ def _reconstruct_body(spec: JobSpec, shape, device, timer: StageTimer, result: T
         report("training")
         stats = CacheStats()
         with stage("network"):
-            network["model"], facts = trained_network(method, get_knn_budget(spec.budget), spec.train_dirs,
+            network["model"], facts = trained_network(method, get_knn_budget(spec.budget, spec.budget_params),
+                                                      spec.train_dirs,
                                                       spec.cache_dir, device, stats=stats,
                                                       progress=lambda step, loss: report("training", step=step,
                                                                                          loss=loss))

@@ -155,10 +155,12 @@ def _budget(config: RunConfig, methods: tuple[str, ...]):
     from methods.fitting import get_budget
 
     if config.task == "reconstruct":
-        from methods.knn_network import KNN_BUDGETS
+        from methods.knn_training import get_knn_budget
 
         learned = any(getattr(METHODS.get(m), "learned", False) for m in methods)
-        return KNN_BUDGETS.get(config.budget) if learned else None
+        if not learned and config.budget_params:
+            raise ConfigError(f"--budget-param: none of {', '.join(methods)} trains a network")
+        return get_knn_budget(config.budget, config.budget_params) if learned else None
     return get_budget(config.budget, config.budget_params) if config.mode == "neural" else None
 
 
@@ -170,8 +172,8 @@ def _variants(config: RunConfig, methods: tuple[str, ...]) -> tuple[dict[str, tu
     from methods.base import METHODS
     from methods.params import ParamError
 
-    typed = sweeps.typed_sweep(config.sweep, methods, config.mode)
-    keys = {k: sweeps.sweep_key(k, methods, config.mode) for k in typed}
+    typed = sweeps.typed_sweep(config.sweep, methods, config.mode, config.task)
+    keys = {k: sweeps.sweep_key(k, methods, config.mode, config.task) for k in typed}
     for name, key in keys.items():
         given = config.method_params.get(key.method, {}) if key.kind == "method" else (
             config.budget_params if key.kind == "budget" else {})

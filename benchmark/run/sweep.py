@@ -12,7 +12,9 @@ Values are typed and range-checked by the key's :class:`methods.params.Param`, e
 ``--method-param`` and ``--budget-param`` values are. Several keys give their cross product, in the
 order given (:func:`variants`). A key applies to a job or not (:meth:`SweepKey.applies_to`): a
 method parameter only to that method's jobs (and, if only the neural query reads it, e.g.
-``sals.o_threshold``, only to its neural jobs), a budget key only to fitted (neural) jobs. A job that a
+``sals.o_threshold``, only to its neural jobs), a budget key only to jobs that train (encoding
+methods in neural mode, the learned reconstruction methods; their budget values differ by task:
+:func:`budget_parameters`). A job that a
 key does not apply to is the same job for every value of the key and runs once (its row has no value
 in that key's column; the sweep reports show it as a constant reference).
 """
@@ -54,34 +56,54 @@ class SweepKey:
         if self.kind == "method":  # a parameter of the neural query only: the exact field ignores it
             return method == self.method and (mode == "neural" or not self.param.neural_only)
         if self.kind == "budget" or self.target == "budget":
-            return mode == "neural"
+            return mode == "neural" and trains(method)
         return True
 
 
-def known_keys(methods: Sequence[str]) -> list[str]:
-    """Every sweep key for these methods (for error messages and ``--help``)."""
+def trains(method: str) -> bool:
+    """Whether a job of ``method`` trains a network (every encoding method in neural mode; the
+    learned reconstruction methods), i.e. depends on the budget."""
     from methods.base import METHODS
+
+    cls = METHODS.get(method)
+    return cls.task == "encode" or bool(getattr(cls, "learned", False))
+
+
+def budget_parameters(task: str) -> dict[str, Param]:
+    """The budget values a run of ``task`` may change: the per-shape fitting budget's (encode) or the
+    K-NN training budget's (reconstruct)."""
+    if task == "reconstruct":
+        from methods.knn_network import KNN_BUDGET_PARAMS
+
+        return KNN_BUDGET_PARAMS
     from methods.fitting import BUDGET_PARAMS
 
-    keys = list(RUN_KEYS) + [f"budget.{k}" for k in sorted(BUDGET_PARAMS)]
+    return BUDGET_PARAMS
+
+
+def known_keys(methods: Sequence[str], task: str = "encode") -> list[str]:
+    """Every sweep key for these methods (for error messages and ``--help``)."""
+    from methods.base import METHODS
+
+    keys = list(RUN_KEYS) + [f"budget.{k}" for k in sorted(budget_parameters(task))]
     return keys + [f"{m}.{p}" for m in methods for p in sorted(METHODS.get(m).parameters)]
 
 
-def sweep_key(name: str, methods: Sequence[str], mode: str) -> SweepKey:
+def sweep_key(name: str, methods: Sequence[str], mode: str, task: str = "encode") -> SweepKey:
     """The key ``name`` for a run of ``methods`` in ``mode``; ConfigError listing the known keys."""
     from methods.base import METHODS
-    from methods.fitting import BUDGET_PARAMS
 
+    budget_params = budget_parameters(task)
     head, dot, tail = name.partition(".")
     key = None
     if not dot and name in RUN_KEYS:
         key = SweepKey(name, "run", name, RUN_KEYS[name])
-    elif dot and head == "budget" and tail in BUDGET_PARAMS:
-        key = SweepKey(name, "budget", tail, BUDGET_PARAMS[tail])
+    elif dot and head == "budget" and tail in budget_params:
+        key = SweepKey(name, "budget", tail, budget_params[tail])
     elif dot and head in methods and tail in METHODS.get(head).parameters:
         key = SweepKey(name, "method", tail, METHODS.get(head).parameters[tail], method=head)
     if key is None:
-        raise ConfigError(f"--sweep: unknown key '{name}'; known keys: {', '.join(known_keys(methods))}")
+        raise ConfigError(f"--sweep: unknown key '{name}'; known keys: {', '.join(known_keys(methods, task))}")
     if mode == "oracle" and not key.applies_to(key.method or "", "oracle"):
         raise ConfigError(f"--sweep {name}: oracle mode fits nothing, so it has no budget to sweep")
     return key
@@ -102,13 +124,16 @@ def split_items(items: Iterable[str]) -> dict[str, list[str]]:
     return out
 
 
-def typed_sweep(sweep: Mapping[str, Sequence[Any]], methods: Sequence[str], mode: str) -> dict[str, tuple]:
+def typed_sweep(sweep: Mapping[str, Sequence[Any]], methods: Sequence[str], mode: str,
+                task: str = "encode") -> dict[str, tuple]:
     """Each key's values typed and checked (ConfigError naming the key or value)."""
     from methods.fitting import BUDGETS
+    from methods.knn_network import KNN_BUDGETS
 
+    registry = KNN_BUDGETS if task == "reconstruct" else BUDGETS
     typed: dict[str, tuple] = {}
     for name, values in sweep.items():
-        key = sweep_key(name, methods, mode)
+        key = sweep_key(name, methods, mode, task)
         try:
             parsed = tuple(key.param.parse(v, f"--sweep {name}") for v in values)
         except ParamError as exc:
@@ -119,8 +144,8 @@ def typed_sweep(sweep: Mapping[str, Sequence[Any]], methods: Sequence[str], mode
             raise ConfigError(f"--sweep {name}: values must not repeat, got {list(values)}")
         if name == "budget":
             for b in parsed:
-                if b not in BUDGETS:
-                    raise ConfigError(f"--sweep budget: {BUDGETS.unknown(b)}")
+                if b not in registry:
+                    raise ConfigError(f"--sweep budget: {registry.unknown(b)}")
         typed[name] = parsed
     return typed
 

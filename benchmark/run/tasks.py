@@ -137,8 +137,7 @@ class JobSpec(TaskSpec):
 def build_tasks(plan) -> tuple[list[FloorSpec], list[JobSpec]]:
     """Floor tasks (one per shape and evaluation sample count, first seed) and jobs (shapes x sweep
     points x methods x seeds, table order; a job that several sweep points share appears once)."""
-    from benchmark.run.sweep import variant_tag
-    from methods.base import METHODS
+    from benchmark.run.sweep import trains as method_trains, variant_tag
 
     c = plan.config
     common = dict(dataset=c.dataset, dataset_options=plan.dataset_options, metric_preset=c.metric_preset,
@@ -158,10 +157,11 @@ def build_tasks(plan) -> tuple[list[FloorSpec], list[JobSpec]]:
                 if vc.mode != c.mode:
                     tag = f"{vc.mode}" + (f",{tag}" if tag else "")
                 for seed in vc.seeds:
-                    trains = vc.task == "encode" or getattr(METHODS.get(m), "learned", False)
+                    trains = method_trains(m)
                     extra = {**reconstruct, "train_dirs": plan.train_dirs} if reconstruct and trains else reconstruct
                     job = JobSpec(shape=s, seed=seed, method=m, params=v.method_params[m], mode=vc.mode,
-                                  budget=vc.budget if trains else None, budget_params=dict(vc.budget_params), grid=vc.grid,
+                                  budget=vc.budget if trains else None,
+                                  budget_params=dict(vc.budget_params) if trains else {}, grid=vc.grid,
                                   eval_points=vc.eval_points, checkpoints=vc.checkpoints, cache_dir=cache_dir,
                                   sweep=values, variant=tag, task=vc.task, **extra, **common)
                     jobs.setdefault(job.key, job)
