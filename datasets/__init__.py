@@ -5,7 +5,8 @@
         shape = ds.load(name)            # may raise MeshError for this one shape only
 
 Registered datasets: ``builtin`` (default: 4 generated CAD-like shapes), ``abc``,
-``abc-nonmanifold`` and ``meshes`` (any folder of mesh files).
+``abc-nonmanifold``, ``meshes`` (any folder of mesh files) and ``pointclouds`` (point-cloud files
+with their GT meshes, for the reconstruct task).
 """
 
 from datasets.io import (
@@ -35,6 +36,7 @@ from datasets.registry import (
 # importing the modules registers their datasets
 from datasets import builtin as _builtin  # noqa: E402,F401
 from datasets import abc as _abc  # noqa: E402,F401
+from datasets import pointclouds as _pointclouds  # noqa: E402,F401
 
 __all__ = [
     "MESH_EXTENSIONS", "MeshError", "Normalization", "Shape", "canonical_transform", "classify_topology",

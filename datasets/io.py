@@ -71,6 +71,8 @@ class Shape:
     transform : maps the source file's frame to the canonical frame.
     source : where the shape came from (a path, or a generator description).
     kind : 'closed', 'open' or 'nonmanifold' (what the dataset says it is, for tables).
+    points : (p, 3) float64 input point cloud in the same canonical frame, for datasets of point-cloud
+        files (the reconstruct task then uses it instead of sampling the mesh); None otherwise.
     """
 
     name: str
@@ -80,6 +82,7 @@ class Shape:
     source: str = ""
     kind: str = "closed"
     meta: dict = field(default_factory=dict)
+    points: np.ndarray | None = None
 
     def to_trimesh(self) -> trimesh.Trimesh:
         """A trimesh view of the arrays (no processing, no merging)."""
@@ -87,8 +90,12 @@ class Shape:
 
     @property
     def content_hash(self) -> str:
-        """SHA-256 (hex, 16 chars) of the canonical vertex and face arrays: the cache key."""
-        return mesh_hash(self.vertices, self.faces)
+        """SHA-256 (hex, 16 chars) of the canonical vertex and face arrays (and the input cloud, if
+        any): the cache key."""
+        if self.points is None:
+            return mesh_hash(self.vertices, self.faces)
+        both = hashlib.sha256((mesh_hash(self.vertices, self.faces) + mesh_hash(self.points, np.zeros((0, 3)))).encode())
+        return both.hexdigest()[:16]
 
 
 def mesh_hash(vertices: np.ndarray, faces: np.ndarray) -> str:

@@ -307,14 +307,18 @@ def _floor_body(spec: FloorSpec, shape, device, timer: StageTimer, result: TaskR
 
 
 def input_point_cloud(shape, n: int, noise: float, seed: int) -> np.ndarray:
-    """The reconstruct task's input: ``n`` area-uniform points of the GT surface (the shared surface
-    sampler on the job's sampler stream: the same cloud for every method of a (shape, seed)) plus
-    Gaussian noise of sigma ``noise`` (canonical units) from the same stream; no normals."""
+    """The reconstruct task's input: the shape's own cloud (a dataset of point-cloud files), else
+    ``n`` area-uniform points of the GT surface (the shared surface sampler on the job's sampler
+    stream: the same cloud for every method of a (shape, seed)); plus Gaussian noise of sigma
+    ``noise`` (canonical units) from the same stream; no normals."""
     from benchmark.seeding import job_streams
     from benchmark.surface import sample_surface
 
     rng = job_streams(shape.content_hash, seed).sampler_rng()
-    points, _ = sample_surface(shape.vertices, shape.faces, n, rng)
+    if shape.points is not None:
+        points = np.asarray(shape.points, dtype=np.float64)
+    else:
+        points, _ = sample_surface(shape.vertices, shape.faces, n, rng)
     if noise > 0:
         points = points + rng.normal(scale=noise, size=points.shape)
     return np.asarray(points, dtype=np.float64)
@@ -344,6 +348,7 @@ def _reconstruct_body(spec: JobSpec, shape, device, timer: StageTimer, result: T
     report("sampling")
     with stage("sample"):
         points = input_point_cloud(shape, spec.pc_points, spec.pc_noise, spec.seed)
+    result.info["input_points"] = int(len(points))
     report("reconstructing")
     with stage("reconstruct"):
         extraction = method.reconstruct(points, spec.grid, device, **network)

@@ -123,6 +123,13 @@ def resolve(config: RunConfig) -> Plan:
         raise ConfigError(str(exc).splitlines()[0] if str(exc) else type(exc).__name__) from None
     if not shapes:
         raise ConfigError(f"dataset '{config.dataset}' has no shapes with these options ({options or 'none'})")
+    if getattr(load_dataset(config.dataset, options), "point_clouds", False):
+        from benchmark.run.config import DEFAULT_PC_POINTS
+
+        if config.task != "reconstruct":
+            raise ConfigError(f"dataset '{config.dataset}' holds point clouds: use --task reconstruct")
+        if config.pc_points != DEFAULT_PC_POINTS:
+            raise ConfigError(f"--pc-points does not apply to dataset '{config.dataset}': its files give the points")
     n = config.eval_points if config.eval_points is not None else preset.n_points
     sweep, variants = _variants(config, methods)
     train_dirs = _train_dirs(config, methods) if budget is not None and config.task == "reconstruct" else ()

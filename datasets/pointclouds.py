@@ -1,0 +1,116 @@
+"""``pointclouds``: a folder of point-cloud files, each with its GT mesh beside it (the reconstruct
+task's inputs given as files instead of sampled from a mesh).
+
+Files: ``<name>.xyz`` (text, one point per line, the first 3 columns; more columns such as normals are
+ignored, as the methods get no normals), ``<name>.npy`` ((P, >= 3) float array) or ``<name>.ply``
+(vertices only: a PLY with faces is a mesh, not a cloud). The GT is the mesh file
+``<name>.gt.<ext>`` (any mesh extension of :data:`datasets.io.MESH_EXTENSIONS`) in the same folder;
+a cloud without one is refused when loaded (it could not be scored). The canonical frame is the GT's
+(SPEC section 1), the cloud is moved with the same transform. Bad clouds (unreadable, empty, non-
+finite, fewer than :data:`MIN_POINTS` points) raise a one-line :class:`datasets.io.MeshError`.
+"""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from datasets.io import MESH_EXTENSIONS, MeshError, Shape, classify_topology, load_shape
+from datasets.registry import Dataset, DatasetError, existing_dir, register_dataset
+
+#: Extensions of point-cloud files.
+CLOUD_EXTENSIONS = (".xyz", ".npy", ".ply")
+#: Fewest points of a usable cloud (the reconstruct task's --pc-points minimum).
+MIN_POINTS = 100
+GT_SUFFIX = ".gt"
+
+
+def read_point_cloud(path: str | Path) -> np.ndarray:
+    """(P, 3) float64 points of a .xyz/.npy/.ply cloud file; MeshError (one line) when unusable."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".npy":
+            data = np.load(path, allow_pickle=False)
+        elif suffix == ".xyz":
+            with warnings.catch_warnings():  # an empty file: numpy warns, we say it in one line below
+                warnings.simplefilter("ignore")
+                data = np.loadtxt(path, dtype=np.float64, ndmin=2, comments="#")
+        elif suffix == ".ply":
+            import trimesh
+
+            loaded = trimesh.load(path, process=False)
+            if len(getattr(loaded, "faces", [])):
+                raise MeshError(f"{path}: a mesh with faces, not a point cloud")
+            data = np.asarray(loaded.vertices)
+        else:
+            raise MeshError(f"{path}: not a point-cloud file ({' '.join(CLOUD_EXTENSIONS)})")
+    except MeshError:
+        raise
+    except Exception as exc:  # noqa: BLE001 -- any parser failure is one line naming the file
+        raise MeshError(f"{path}: cannot read the point cloud ({type(exc).__name__}: "
+                        f"{str(exc).strip().splitlines()[0] if str(exc).strip() else 'unreadable'})") from None
+    data = np.asarray(data, dtype=np.float64)
+    if data.size == 0:
+        raise MeshError(f"{path}: 0 points; a cloud needs at least {MIN_POINTS}")
+    if data.ndim != 2 or data.shape[1] < 3:
+        raise MeshError(f"{path}: expected (P, 3) points, got an array of shape {data.shape}")
+    points = data[:, :3]
+    if len(points) < MIN_POINTS:
+        raise MeshError(f"{path}: {len(points)} points; a cloud needs at least {MIN_POINTS}")
+    if not np.isfinite(points).all():
+        raise MeshError(f"{path}: {int((~np.isfinite(points).all(axis=1)).sum())} points with NaN/inf coordinates")
+    return points
+
+
+def _cloud_files(folder: Path) -> dict[str, Path]:
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in CLOUD_EXTENSIONS and p.is_file()
+                   and not p.stem.endswith(GT_SUFFIX))
+    return {p.stem: p for p in files}
+
+
+def gt_path(cloud: Path) -> Path | None:
+    """The GT mesh beside a cloud file (``<name>.gt.<mesh ext>``), or None."""
+    for ext in MESH_EXTENSIONS:
+        candidate = cloud.with_name(cloud.stem + GT_SUFFIX + ext)
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+@register_dataset("pointclouds")
+class PointCloudDataset(Dataset):
+    """Point-cloud files with their GT meshes (module docstring); shapes named by file stem, sorted.
+    Only for ``--task reconstruct``."""
+
+    name = "pointclouds"
+    point_clouds = True
+
+    def __init__(self, data_dir=None):
+        self.data_dir = existing_dir(data_dir, self.name)
+        self._paths = _cloud_files(self.data_dir)
+        if not self._paths:
+            raise DatasetError(f"dataset 'pointclouds': no point-cloud files ({' '.join(CLOUD_EXTENSIONS)}) in "
+                               f"{self.data_dir}")
+
+    def names(self) -> list[str]:
+        return list(self._paths)
+
+    def load(self, name: str) -> Shape:
+        if name not in self._paths:
+            raise self._unknown_shape(name)
+        cloud = self._paths[name]
+        gt = gt_path(cloud)
+        if gt is None:
+            raise MeshError(f"{cloud}: no GT mesh beside it ({cloud.stem}{GT_SUFFIX}.ply or another mesh "
+                            f"extension); a cloud without a GT cannot be scored")
+        mesh = load_shape(gt, name=name, kind="closed")
+        points = mesh.transform.apply(read_point_cloud(cloud))
+        return Shape(name, mesh.vertices, mesh.faces, mesh.transform, str(cloud), classify_topology(mesh.faces),
+                     {"gt": str(gt)}, points)
+
+    def options(self) -> dict[str, Any]:
+        return {"data_dir": str(self.data_dir)}
