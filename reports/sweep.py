@@ -65,8 +65,9 @@ PREFIX = "sweep."
 POS, SERIES = "@", "@series"
 #: Name of the table over every combination of values (several keys).
 COMBINED = "combinations"
-#: A numeric axis is logarithmic when its positive values span this factor (two decades).
-LOG_SPAN = 100.0
+#: A numeric axis is logarithmic when its positive values span this factor (a decade or more: the
+#: o thresholds 0.02-0.5 crowd their low end on a linear axis; grids 64-256 stay linear).
+LOG_SPAN = 10.0
 #: Validity means of a sweep table (their labels come from the result schema).
 VALIDITY = ("n_faces", "boundary_edges", "nonmanifold_edges")
 FIT = "fit_s"

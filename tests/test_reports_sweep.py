@@ -118,7 +118,8 @@ def test_two_keys_marginals_and_combinations():
 
 
 @pytest.mark.parametrize("values, scale", [
-    ([1e5, 1e6, 1e7], "log"), ([1000, 100000], "log"), ([100000, 1000000], "linear"), ([0.1, 0.5], "linear"),
+    ([1e5, 1e6, 1e7], "log"), ([1000, 100000], "log"), ([100000, 1000000], "log"), ([0.1, 0.5], "linear"),
+    ([0.02, 0.05, 0.1, 0.5], "log"), ([64, 128, 256], "linear"),
     ([-1, 100], "linear"), (["fan4", "quad2"], "categorical"), ([True, False], "categorical")])
 def test_axis_scale(values, scale):
     assert axis_scale(values) == scale
