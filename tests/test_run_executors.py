@@ -58,6 +58,24 @@ def test_threads_per_worker():
     assert threads_per_worker(3, cores=16) == 5
 
 
+def test_pin_threads_sets_the_openmp_variables_and_torchs_pool(monkeypatch):
+    """What `train --threads T` and every process worker call: after it, torch runs T intra-op threads
+    and a library loaded later (the KD-tree's OpenMP runtime) reads T from OMP_NUM_THREADS."""
+    import torch
+
+    from benchmark.run.executors import pin_threads
+
+    before = torch.get_num_threads()
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        monkeypatch.delenv(var, raising=False)
+    try:
+        pin_threads(1)
+        assert torch.get_num_threads() == 1
+        assert all(os.environ[v] == "1" for v in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"))
+    finally:
+        torch.set_num_threads(before)
+
+
 def test_local_executor_runs_in_order_with_stages():
     stages = []
     got = list(LocalExecutor().run(_square, [_Spec(i) for i in range(4)], on_stage=lambda *a, **k: stages.append((a, k))))

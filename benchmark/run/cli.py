@@ -348,6 +348,10 @@ def train_main(argv: Sequence[str]) -> int:
     from benchmark.run.tasks import cache_root_of
     from benchmark.run.training import trained_network
 
+    if plan.config.threads:
+        from benchmark.run.executors import pin_threads
+
+        pin_threads(int(plan.config.threads))
     for name in learned:
         bar = tqdm(total=plan.budget.steps, desc=f"train {name} ({plan.budget.name})", disable=plan.config.quiet)
 

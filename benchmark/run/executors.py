@@ -108,6 +108,12 @@ def _process_init(threads: int, progress_queue) -> None:
     """Pool initializer: pin thread counts before any heavy import, keep the progress queue."""
     global _WORKER_QUEUE
     _WORKER_QUEUE = progress_queue
+    pin_threads(threads)
+
+
+def pin_threads(threads: int) -> None:
+    """Use ``threads`` CPU threads in this process: the OpenMP/BLAS variables (read by torch and the
+    KD-tree's OpenMP runtime when they are first loaded) and torch's intra-op pool if already loaded."""
     for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
         os.environ[var] = str(threads)  # torch reads OMP_NUM_THREADS when it is first imported
     if "torch" in sys.modules:
@@ -340,5 +346,5 @@ def ray_available() -> tuple[bool, str]:
         return False, f"ray is not installed ({exc}); pip install 'ray>=2.9' to run the Ray executor"
 
 
-__all__ = ["LocalExecutor", "ProcessExecutor", "RayExecutor", "WorkerLost", "make_executor", "threads_per_worker",
+__all__ = ["LocalExecutor", "ProcessExecutor", "RayExecutor", "WorkerLost", "make_executor", "pin_threads", "threads_per_worker",
            "available_cores", "ray_available", "EXECUTORS"]
