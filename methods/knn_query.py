@@ -6,7 +6,8 @@ their nearest input point (the paper: 4 h); everything farther is "no surface". 
 by marking the voxels holding input points, dilating them by ``ceil(radius / h) + 1`` grid steps
 (scipy.ndimage) and keeping the candidates whose exact KD-tree distance is within the radius.
 A query's K neighbours come from one KD-tree query over all queries (``knn_neighbourhoods``), then
-the network runs in chunks (:data:`CHUNK` queries, eval mode); with ``grad_output`` it also returns
+the network runs in chunks (:func:`chunk_size` queries, eval mode; the KD-tree query is timed as the
+sub-stage ``knn`` of the caller's stage); with ``grad_output`` it also returns
 the gradient of that output w.r.t. the query's anchor coordinates (the neighbours held fixed).
 """
 
@@ -18,11 +19,22 @@ from pykdtree.kdtree import KDTree
 from scipy import ndimage
 
 from benchmark.grid import LOWER, spacing
+from benchmark.timing import stage
 from methods.knn_network import knn_neighbourhoods
 from methods.query import edge_inputs, edges_in_points, point_inputs
 
-#: Queries per forward pass (each carries K neighbours: 8,192 x 20 point features).
-CHUNK = 8_192
+#: Queries per forward pass, by device type. Each query carries K point features through the
+#: encoders, so a chunk's activations are ``chunk x K x width`` floats: on a CPU the pass is bound by
+#: cache, not arithmetic. Measured (one thread, the ``cpu`` segment network, K = 20, 32,768 random
+#: segments, side by side in one process): chunks of 8,192 took 4.1 s, 2,048: 1.5-2.0 s, 1,024:
+#: 1.8-2.0 s, 512: 1.5-1.7 s, 256: 1.1-1.2 s, 128: 1.3-1.4 s. A GPU wants large chunks.
+CHUNK = {"cpu": 256, "cuda": 16_384}
+DEFAULT_CHUNK = 4_096
+
+
+def chunk_size(device) -> int:
+    """Queries per forward pass on ``device`` (:data:`CHUNK`, else :data:`DEFAULT_CHUNK`)."""
+    return CHUNK.get(torch.device(device).type, DEFAULT_CHUNK)
 
 
 def knn_k(model) -> int:
@@ -76,12 +88,14 @@ def evaluate_knn(model, anchors: np.ndarray, cloud: np.ndarray, k: int, device=N
     anchors = np.ascontiguousarray(anchors, dtype=np.float32)
     centres = anchors.mean(axis=1) if anchors.ndim == 3 else anchors
     cloud32 = np.ascontiguousarray(cloud, dtype=np.float32)
-    index = knn_neighbourhoods(cloud, centres, k) if len(anchors) else np.zeros((0, k), np.int64)
+    with stage("knn"):
+        index = knn_neighbourhoods(cloud, centres, k) if len(anchors) else np.zeros((0, k), np.int64)
     device = device or next(model.parameters()).device
     outs, grads = [], []
-    for i in range(0, len(anchors), CHUNK):
-        a = torch.from_numpy(anchors[i:i + CHUNK]).to(device)
-        q = torch.from_numpy(cloud32[index[i:i + CHUNK]]).to(device)
+    chunk = chunk_size(device)
+    for i in range(0, len(anchors), chunk):
+        a = torch.from_numpy(anchors[i:i + chunk]).to(device)
+        q = torch.from_numpy(cloud32[index[i:i + chunk]]).to(device)
         if grad_output is None:
             with torch.inference_mode():
                 outs.append(model(a, q).float().cpu().numpy())
