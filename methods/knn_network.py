@@ -356,8 +356,19 @@ class KNNBudget:
 #: and 1.6-4 s for the winding numbers of occ-knn (15 s on a 109k-face Thingi10K mesh): ~1.5 min
 #: for 24 parts + the 5 Thingi10K meshes, so the dearest method (segments, 15 min of steps) and the
 #: dearest labelling (occupancy: 8 min of steps + ~2 min of labels) both stay within ~20 min.
-#: *tiny* = tests (seconds): K = 8, width 32, one hidden layer, lr 3e-3, 4 parts, pools of 20k
-#: samples and 10k points.
+#: Measured end to end (``run_benchmark.py train --threads 1``, two trainings side by side on the 2
+#: cores, so each step shares memory bandwidth): sals-knn 1,317 s of steps (0.88 s a step, final
+#: loss 0.91 from 2.2), udf-knn 738 s (0.0010 from 0.014), occ-knn 622 s (BCE 0.59: see
+#: methods/occ_knn.py), plus 1-2 min of labelling each: the segment network overshoots 20 min by ~10%
+#: when it shares the machine.
+#: *tiny* = tests (seconds): K = 16, width 32, one hidden layer, lr 3e-3, 400 steps of 2 x 256
+#: samples, 4 parts, pools of 20k samples and 20k points, clouds of 10k points. The cloud size
+#: costs almost nothing (one KD-tree per item; the network sees K points per sample) but decides
+#: whether the segment network can learn at all: its s needs the local surface located to a
+#: fraction of a segment's length (~0.01), which 2,000 points on a part (spacing ~0.05) do not
+#: give. Measured on the held-out cube of tests/test_knn_methods.py (grid 64): K = 8 and 2k-point
+#: clouds, 300 steps: CD 0.039 with every band edge "hit" (the untrained network: 0.042); K = 16 and
+#: 10k points, 400 steps: CD 0.013 in ~10 s of training.
 KNN_BUDGETS: Registry[KNNBudget] = Registry("knn budget")
 
 #: K-NN budget values a run may override (``--budget-param``, sweep keys ``budget.NAME`` of the
@@ -383,8 +394,8 @@ for _budget in (
     KNNBudget("cpu", k=20, encoder_width=64, encoder_depth=2, head_width=64, head_depth=2, steps=1_500,
               shapes_per_batch=4, samples_per_item=1_024, points_per_item=40_000, lr=1e-3, log_every=50,
               training_shapes=24, pool_samples=200_000, pool_points=200_000),
-    KNNBudget("tiny", k=8, encoder_width=32, encoder_depth=1, head_width=32, head_depth=1, steps=300,
-              shapes_per_batch=2, samples_per_item=256, points_per_item=2_000, lr=3e-3, log_every=50,
-              training_shapes=4, pool_samples=20_000, pool_points=10_000),
+    KNNBudget("tiny", k=16, encoder_width=32, encoder_depth=1, head_width=32, head_depth=1, steps=400,
+              shapes_per_batch=2, samples_per_item=256, points_per_item=10_000, lr=3e-3, log_every=50,
+              training_shapes=4, pool_samples=20_000, pool_points=20_000),
 ):
     KNN_BUDGETS.register(_budget.name, _budget)
