@@ -8,6 +8,14 @@ within ``band`` h of an input point get the network's probability; every other g
 outside if its connected far region touches the border of the grid, inside otherwise (a flood
 fill, scipy.ndimage.label); marching cubes at 0.5 (scikit-image). Like every occupancy method it
 closes open surfaces and cannot keep a non-manifold branching.
+
+The shared encoder is purely local, and occupancy is not a local quantity: the K neighbours of
+x + d n and of x - d n beside a flat patch with normal n are mirror images, so the network cannot
+tell the inside from the outside there (only curvature hints at it). Measured at the ``cpu``
+budget: training BCE 0.59 after 1,500 steps (a constant guess: ln 2 = 0.69 on balanced labels);
+CD 13.1e-3 on the 22 ABC parts (udf-knn: 2.6e-3) and 42e-3 on a plain box, where the band keeps
+sheets of p ~ 0.5. POCO and ConvONet get the sign from a large receptive field; here the encoder is
+the shared one so that the comparison isolates the representation, and this is the price.
 """
 
 from __future__ import annotations
