@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from benchmark.metrics import mesh_validity
 from benchmark.serialize import dumps
 from reports import plots, render
 from reports.frames import numeric, ok_jobs, one_line
@@ -105,12 +106,30 @@ def _img(png: bytes, alt: str) -> str:
     return f'<img src="{data_uri(png, "image/png")}" alt="{esc(alt)}" width="200" height="200">'
 
 
+def topology_text(boundary_edges: float, nonmanifold_edges: float) -> str:
+    """'∂ 1,204 · NM 0': boundary and non-manifold edge counts (an open surface keeps its boundary,
+    a branching surface its non-manifold edges; a closing method shows 0 and 0)."""
+    if not (np.isfinite(boundary_edges) and np.isfinite(nonmanifold_edges)):
+        return ""
+    return f"∂ {boundary_edges:,.0f} · NM {nonmanifold_edges:,.0f}"
+
+
 def _metrics_text(summary: Summary, shape: str, method: str) -> str:
-    """'CD 4.50 · ECD 2.00 · EF1 0.60': the shape's mean over seeds, table units."""
+    """'CD 4.50 · ECD 2.00 · EF1 0.60 · ∂ 0 · NM 0': the shape's mean over seeds, table units, and
+    the prediction's boundary / non-manifold edge counts."""
     ok = ok_jobs(summary.results)
     sel = ok[(ok["shape"] == shape) & (ok["method"] == method)]
-    return " · ".join(f"{m.name} {fmt(numeric(sel, m.column).mean() * m.scale, 2)}"
-                      for m in summary.metrics if m.column in plots.PLOTTED)
+    parts = [f"{m.name} {fmt(numeric(sel, m.column).mean() * m.scale, 2)}"
+             for m in summary.metrics if m.column in plots.PLOTTED]
+    if len(sel) and {"boundary_edges", "nonmanifold_edges"} <= set(sel.columns):
+        parts.append(topology_text(numeric(sel, "boundary_edges").mean(), numeric(sel, "nonmanifold_edges").mean()))
+    return " · ".join(p for p in parts if p)
+
+
+def _gt_caption(vertices: np.ndarray, faces: np.ndarray) -> str:
+    """'12,000 faces · ∂ 0 · NM 0' of the GT mesh."""
+    validity = mesh_validity(vertices, faces)
+    return f"{len(faces):,} faces · " + topology_text(validity["boundary_edges"], validity["nonmanifold_edges"])
 
 
 def _prediction_figure(summary: Summary, shape: str, method: str, path: Path, gt, bounds, size: int,
@@ -167,7 +186,7 @@ def gallery_html(summary: Summary, meshes_dir: Path | None, colors: dict, limit:
                     bounds = (used.min(0), used.max(0))
                 figures = [("GT", _img(render.render_mesh(*gt, size=(size, size), bounds=bounds,
                                                           base_color=render.GT_COLOR), f"{shape} GT"),
-                            mini_legend(vmax), f"{len(gt[1]):,} faces")]
+                            mini_legend(vmax), _gt_caption(*gt))]
             except Exception as exc:  # noqa: BLE001
                 gt = None
                 figures = [("GT", _placeholder("missing", "unreadable GT", one_line(exc)), "", "")]
@@ -201,7 +220,9 @@ def colorbar_html(vmax: float, grid: int) -> str:
     return (f'<div class="cbar"><div class="bar" style="background:{render.error_gradient_css()}"></div>'
             f'<div class="ticks">{ticks}</div><p>Second row: distance from each predicted vertex to the GT '
             f'surface (exact, libigl), canonical frame units (a shape\'s largest side is 1.99), clipped at '
-            f'{vmax:g}{esc(cells)}. Same camera for every mesh of a shape.</p></div>')
+            f'{vmax:g}{esc(cells)}. Same camera for every mesh of a shape. Captions: ∂ = boundary edges, NM = '
+            f'non-manifold edges (an open or branching GT keeps them only where a method can represent '
+            f'them).</p></div>')
 
 
 # ---------------------------------------------------------------------------------------------

@@ -292,3 +292,20 @@ def test_html_summary_counts_empty_predictions(tmp_path):
     # sals CD x1e3 over the 5 non-empty jobs: (4 + 5 + 4 + 5 + 4) / 5 = 4.400
     assert (row["method"], row["jobs"], row["empty"], row["CD ×1e3 ↓"]) == ("sals", "6", "1", "4.400")
     assert "CD, NC: over non-empty predictions" in summary
+
+
+def test_gallery_captions_count_boundary_and_non_manifold_edges():
+    """A box with one side's two triangles removed has a square hole: 4 boundary edges, no
+    non-manifold edge; a third triangle on one of the box's edges makes that edge non-manifold."""
+    import trimesh
+
+    from reports.html import _gt_caption, topology_text
+
+    box = trimesh.creation.box()
+    V, F = np.asarray(box.vertices), np.asarray(box.faces)
+    side = np.flatnonzero(np.all(np.isclose(box.triangles_center[:, [0]], 0.5), axis=1))
+    open_box = np.delete(F, side, axis=0)
+    assert _gt_caption(V, open_box) == "10 faces · ∂ 4 · NM 0"
+    fin = np.vstack([F, [[F[0, 0], F[0, 1], len(V)]]])
+    assert _gt_caption(np.vstack([V, [[2.0, 2.0, 2.0]]]), fin).endswith("NM 1")
+    assert topology_text(float("nan"), 0) == ""
