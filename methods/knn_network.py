@@ -366,7 +366,8 @@ class KNNBudget:
 #: costs almost nothing (one KD-tree per item; the network sees K points per sample) but decides
 #: whether the segment network can learn at all: its s needs the local surface located to a
 #: fraction of a segment's length (~0.01), which 2,000 points on a part (spacing ~0.05) do not
-#: give. Measured on the held-out cube of tests/test_knn_methods.py (grid 64): K = 8 and 2k-point
+#: give. Measured on the held-out cube of tests/test_knn_methods.py at grid 64 (the test itself
+#: uses 32): K = 8 and 2k-point
 #: clouds, 300 steps: CD 0.039 with every band edge "hit" (the untrained network: 0.042); K = 16 and
 #: 10k points, 400 steps: CD 0.013 in ~10 s of training.
 KNN_BUDGETS: Registry[KNNBudget] = Registry("knn budget")

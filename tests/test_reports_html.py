@@ -297,8 +297,6 @@ def test_html_summary_counts_empty_predictions(tmp_path):
 def test_gallery_captions_count_boundary_and_non_manifold_edges():
     """A box with one side's two triangles removed has a square hole: 4 boundary edges, no
     non-manifold edge; a third triangle on one of the box's edges makes that edge non-manifold."""
-    import trimesh
-
     from reports.html import _gt_caption, topology_text
 
     box = trimesh.creation.box()

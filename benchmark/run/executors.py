@@ -241,14 +241,8 @@ class ProcessExecutor:
 
 
 def _ray_call(fn: Callable, spec, threads: int):
-    """Body of a Ray task: set torch threads to the task's CPU share, run the job function."""
-    os.environ["OMP_NUM_THREADS"] = str(threads)
-    try:
-        import torch
-
-        torch.set_num_threads(threads)
-    except ImportError:
-        pass
+    """Body of a Ray task: pin the threads to the task's CPU share, run the job function."""
+    pin_threads(threads)
     return fn(spec, None)
 
 
@@ -346,5 +340,5 @@ def ray_available() -> tuple[bool, str]:
         return False, f"ray is not installed ({exc}); pip install 'ray>=2.9' to run the Ray executor"
 
 
-__all__ = ["LocalExecutor", "ProcessExecutor", "RayExecutor", "WorkerLost", "make_executor", "pin_threads", "threads_per_worker",
-           "available_cores", "ray_available", "EXECUTORS"]
+__all__ = ["LocalExecutor", "ProcessExecutor", "RayExecutor", "WorkerLost", "make_executor", "pin_threads",
+           "threads_per_worker", "available_cores", "ray_available", "EXECUTORS"]
