@@ -6,7 +6,9 @@ parameter group per kind of weight (:func:`parameter_groups`): the MLP's weights
 decay) and, for the grid backbone, the feature grid (lr_grid, no weight decay); cosine decay of
 each group's learning rate from its start to its end value over ``iterations`` steps (MLP:
 ``lr_t = lr_final + (lr - lr_final) (1 + cos(pi t / T)) / 2``; grid: the same from ``lr_grid`` to
-``lr_grid_final``), so both reach their end value at the budget's last step (torch's fused AdamW
+``lr_grid_final``), so both reach their end value at the budget's last step; with
+``warmup_fraction`` > 0 the first ``W = round(warmup_fraction T)`` steps scale that schedule by
+``(t + 1) / W`` (a linear warm-up; from step W on the schedule is the cosine above) (torch's fused AdamW
 kernel where the budget asks for it, :func:`make_optimizer`); each step draws ``batch_size``
 samples *with replacement* from the M samples with a ``torch.Generator`` seeded by ``seed``; the
 loss is ``method.loss(prediction, batch_targets, inputs, model)``. Everything about a fit is
@@ -14,7 +16,9 @@ decided by (method, samples, targets, budget, seed): on the CPU the same seed gi
 weights bit for bit (same thread count). The seed is the job's fitting stream
 (``benchmark.seeding.JobStreams.fitting_seed``); it seeds the network initialisation and the
 batch-order generator. A non-finite loss raises :class:`FittingError` (the runner records the job
-as failed and goes on).
+as failed and goes on), and so does a fit that ends with a constant network (every output the same
+on the training inputs: its Softplus units died, :func:`check_not_constant`), which would otherwise
+read as an empty mesh.
 """
 
 from __future__ import annotations
@@ -53,6 +57,8 @@ class Budget:
     where the optimizer step was ~40% of a training step). Off for the MLP budgets, whose numbers
     stay those of the default kernel.
     ``log_every``: the loss is checked for NaN/inf and reported to ``progress`` every so many steps.
+    ``warmup_fraction``: the first ``round(warmup_fraction * iterations)`` steps ramp both learning
+    rates linearly up to their schedule (:func:`learning_rate`); 0 = none (the MLP budgets).
     """
 
     name: str
@@ -73,8 +79,11 @@ class Budget:
     lr_grid: float = 0.0
     lr_grid_final: float = 0.0
     fused_adam: bool = False
+    warmup_fraction: float = 0.0
 
     def __post_init__(self):
+        if not 0.0 <= self.warmup_fraction < 1.0:
+            raise ValueError(f"budget '{self.name}': warmup_fraction must be in [0, 1), got {self.warmup_fraction}")
         if self.backbone not in BACKBONES:
             raise ValueError(f"budget '{self.name}': unknown backbone '{self.backbone}'; known: {', '.join(BACKBONES)}")
         object.__setattr__(self, "grid_resolutions", tuple(int(r) for r in self.grid_resolutions))
@@ -111,6 +120,11 @@ class Budget:
 #: 3.13/3.92/0.41/128; bof 3.75/3.82/0.38 -> 3.84/3.66/0.41/35 -> 4.14/3.57/0.42/61. 2,000 improves
 #: every method's edges over 1,000; 4,000 helps SALS and SDF further but not UDF (ECD) or BOF (CD)
 #: and doubles the fit time past what the default command may take (10 minutes).
+#: Warm-up (5 % of the steps, cpu and tiny-grid): at the full 1e-2 from the first step the SDF head
+#: of ABC 00000009 (a thin part: 45 % of the samples inside, |sdf| <= 0.028 there) died within 50
+#: steps (every Softplus(100) unit negative on every input; loss flat at 0.0138 for 2,000 steps, a
+#: constant output, an empty mesh); with 100 warm-up steps it fits (loss 0.00037), as with a head
+#: lr of 3e-3 (0.00038), which would slow every other method.
 #: The default budget of run_benchmark.py. A finest level of 128 was measured on 3 ABC parts: it
 #: makes the steps ~3x dearer and helps SDF's sharp edges (ECD 4.6e-2 -> 1.6e-2 on 00019203) while
 #: SALS at the paper's o threshold got worse (CD 2.2e-3 -> 5.6e-3): kept at 16/32/64 for every method.
@@ -125,10 +139,10 @@ for _budget in (
            lr=3e-3, log_every=20),
     Budget("cpu", depth=3, width=64, iterations=2_000, batch_size=4_096, num_samples=1_000_000,
            lr=1e-2, lr_final=1e-4, log_every=50, backbone="grid", grid_resolutions=(16, 32, 64),
-           grid_channels=4, lr_grid=1e-2, lr_grid_final=1e-4, fused_adam=True),
+           grid_channels=4, lr_grid=1e-2, lr_grid_final=1e-4, fused_adam=True, warmup_fraction=0.05),
     Budget("tiny-grid", depth=3, width=32, iterations=250, batch_size=2_048, num_samples=100_000,
            lr=1e-2, lr_final=1e-4, log_every=25, backbone="grid", grid_resolutions=(16, 32, 64),
-           grid_channels=4, lr_grid=1e-2, lr_grid_final=1e-4, fused_adam=True),
+           grid_channels=4, lr_grid=1e-2, lr_grid_final=1e-4, fused_adam=True, warmup_fraction=0.05),
 ):
     BUDGETS.register(_budget.name, _budget)
 
@@ -147,6 +161,7 @@ BUDGET_PARAMS: dict[str, Param] = {
     "lr_grid": Param(1.0, "feature-grid learning rate at the first step", gt=0),
     "lr_grid_final": Param(1.0, "feature-grid learning rate at the last step", ge=0),
     "grid_channels": Param(1, "features per grid level", ge=1),
+    "warmup_fraction": Param(0.5, "fraction of the steps that ramp the learning rates up linearly", ge=0, lt=1),
 }
 
 
@@ -185,6 +200,32 @@ class FitResult:
 def cosine_lr(step: int, iterations: int, lr: float, lr_final: float) -> float:
     """lr_final + (lr - lr_final) (1 + cos(pi step / iterations)) / 2."""
     return lr_final + 0.5 * (lr - lr_final) * (1.0 + math.cos(math.pi * step / max(iterations, 1)))
+
+
+def learning_rate(step: int, iterations: int, lr: float, lr_final: float, warmup_steps: int = 0) -> float:
+    """The lr of 0-based ``step``: :func:`cosine_lr`, scaled by ``(step + 1) / warmup_steps`` for
+    ``step < warmup_steps`` (a linear warm-up)."""
+    scale = (step + 1) / warmup_steps if step < warmup_steps else 1.0
+    return scale * cosine_lr(step, iterations, lr, lr_final)
+
+
+#: A fit whose outputs on (up to this many) training inputs all lie within :data:`CONSTANT_PTP` of
+#: each other, in every channel, is a collapsed network (:func:`check_not_constant`).
+CONSTANT_PROBE = 4096
+CONSTANT_PTP = 1e-6
+
+
+def check_not_constant(model: torch.nn.Module, inputs: torch.Tensor, where: str) -> None:
+    """Raise :class:`FittingError` if ``model`` gives the same output on all of ``inputs`` (its
+    hidden units died: every Softplus is ~0 on every input, so only the last bias learns and the
+    field has no level set at all)."""
+    with torch.no_grad():
+        out = model(inputs[:CONSTANT_PROBE])
+    spread = (out.max(dim=0).values - out.min(dim=0).values).max().item() if len(out) > 1 else 1.0
+    if spread < CONSTANT_PTP:
+        raise FittingError(f"the network collapsed to a constant output (spread {spread:.2g} over "
+                           f"{len(out)} training inputs) in {where}: its hidden units died; a longer "
+                           f"budget.warmup_fraction or a lower budget.lr may fit it")
 
 
 def parameter_groups(model: torch.nn.Module, budget: Budget) -> list[dict]:
@@ -257,6 +298,7 @@ def fit(method, samples, targets: dict, budget: str | Budget, seed: int = 0, dev
     optimizer = make_optimizer(model, budget)
     needs_grad = bool(getattr(method, "loss_needs_input_grad", False))
     T, B = int(budget.iterations), int(budget.batch_size)
+    warmup = round(budget.warmup_fraction * T)
     losses = torch.zeros(T, dtype=torch.float32, device=device)
     every = max(1, int(budget.log_every))
     pause_at = {int(c) for c in checkpoints}
@@ -267,7 +309,7 @@ def fit(method, samples, targets: dict, budget: str | Budget, seed: int = 0, dev
     t0 = time.perf_counter()
     for step in range(T):
         for group in optimizer.param_groups:
-            group["lr"] = cosine_lr(step, T, group["lr_start"], group["lr_end"])
+            group["lr"] = learning_rate(step, T, group["lr_start"], group["lr_end"], warmup)
         idx = torch.randint(0, M, (B,), generator=generator, device=device)
         xb = x_all[idx]
         if needs_grad:
@@ -293,6 +335,7 @@ def fit(method, samples, targets: dict, budget: str | Budget, seed: int = 0, dev
     synchronize(device)
     seconds = time.perf_counter() - t0 - paused
     model.eval()
+    check_not_constant(model, x_all, f"method '{method.name}', budget '{budget.name}', seed {seed}")
     curve = losses.cpu().numpy()
     final = float(np.mean(curve[-every:]))
     return FitResult(model=model, losses=curve, seconds=seconds, iterations=T, final_loss=final,

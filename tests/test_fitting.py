@@ -8,8 +8,8 @@ import pytest
 import torch
 
 from methods.base import Method
-from methods.fitting import (BUDGETS, Budget, FittingError, cosine_lr, fit, get_budget, model_from_bytes,
-                             model_to_bytes, parameter_groups)
+from methods.fitting import (BUDGETS, Budget, FittingError, check_not_constant, cosine_lr, fit, get_budget,
+                             learning_rate, model_from_bytes, model_to_bytes, parameter_groups)
 from methods.marching_cubes import marching_cubes_grid
 from methods.network import GridNetwork, make_network
 from methods.query import dense_grid_points, evaluate
@@ -71,7 +71,8 @@ def test_budgets_are_data_and_paper_matches_spec():
 def test_mlp_budgets_keep_their_values_network_and_optimizer():
     """paper, quick and tiny are today's MLP budgets: same values, same network arguments, one AdamW group."""
     common = dict(beta=100.0, lr_final=1e-5, weight_decay=0.01, activation="softplus", backbone="mlp",
-                  grid_resolutions=(), grid_channels=0, lr_grid=0.0, lr_grid_final=0.0, fused_adam=False)
+                  grid_resolutions=(), grid_channels=0, lr_grid=0.0, lr_grid_final=0.0, fused_adam=False,
+                  warmup_fraction=0.0)
     expected = {
         "paper": dict(depth=9, width=512, iterations=100_000, batch_size=10_000, num_samples=10_000_000, lr=1e-3,
                       log_every=500),
@@ -117,6 +118,61 @@ def test_cosine_schedule_endpoints_and_midpoint():
     assert cosine_lr(0, 100, 1e-3, 1e-5) == pytest.approx(1e-3)
     assert cosine_lr(50, 100, 1e-3, 1e-5) == pytest.approx(0.5 * (1e-3 + 1e-5))
     assert cosine_lr(100, 100, 1e-3, 1e-5) == pytest.approx(1e-5)
+
+
+def test_warmup_ramps_linearly_then_follows_the_cosine():
+    assert learning_rate(0, 100, 1e-2, 1e-4, warmup_steps=10) == pytest.approx(1e-3)  # 1/10 of cosine(0)
+    assert learning_rate(4, 100, 1e-2, 1e-4, warmup_steps=10) == pytest.approx(0.5 * cosine_lr(4, 100, 1e-2, 1e-4))
+    for step in (10, 50, 100):
+        assert learning_rate(step, 100, 1e-2, 1e-4, warmup_steps=10) == cosine_lr(step, 100, 1e-2, 1e-4)
+    assert learning_rate(0, 100, 1e-2, 1e-4) == cosine_lr(0, 100, 1e-2, 1e-4)  # no warm-up
+    assert BUDGETS["cpu"].warmup_fraction == 0.05 and BUDGETS["tiny-grid"].warmup_fraction == 0.05
+    assert all(BUDGETS[name].warmup_fraction == 0.0 for name in ("paper", "quick", "tiny"))
+    with pytest.raises(ValueError, match=r"warmup_fraction must be in \[0, 1\)"):
+        replace(TOY, warmup_fraction=1.0)
+    # the optimizer sees the ramp: after step 0 of a 20 % warm-up the lr is 1/W of the schedule's
+    seen = []
+
+    class Recording(SphereSDF):
+        def loss(self, prediction, targets, inputs=None, model=None):
+            seen.append(model_lrs[0]())
+            return super().loss(prediction, targets)
+
+    samples, targets = _toy_data()
+    model_lrs = []
+    import methods.fitting as fitting_module
+
+    original = fitting_module.make_optimizer
+
+    def spy(model, budget):
+        optimizer = original(model, budget)
+        model_lrs.append(lambda: optimizer.param_groups[0]["lr"])
+        return optimizer
+
+    fitting_module.make_optimizer = spy
+    try:
+        fit(Recording(), samples, targets, replace(TOY, warmup_fraction=0.2), seed=0, device="cpu")
+    finally:
+        fitting_module.make_optimizer = original
+    W = round(0.2 * TOY.iterations)
+    assert seen[0] == pytest.approx(TOY.lr / W) and seen[W - 1] == pytest.approx(cosine_lr(W - 1, TOY.iterations, TOY.lr, TOY.lr_final))
+    assert seen[W:] == pytest.approx([cosine_lr(t, TOY.iterations, TOY.lr, TOY.lr_final) for t in range(W, TOY.iterations)])
+
+
+def test_a_dead_network_is_a_fitting_error_not_an_empty_mesh():
+    """Every Softplus(100) unit negative on every input (first-layer bias -10): the output is the last
+    bias, a constant: the check names it; a live network passes."""
+    model = make_network(3, 1, depth=3, width=16)
+    x = torch.rand(500, 3) * 2 - 1
+    check_not_constant(model, x, "a live network")
+    with torch.no_grad():
+        model.layers[0].bias.fill_(-10.0)
+    with pytest.raises(FittingError, match="collapsed to a constant output .* in the test: its hidden units died"):
+        check_not_constant(model, x, "the test")
+    samples, targets = _toy_data()
+    samples.points[:] = samples.points[0]  # every training input the same point: any fit is constant there
+    with pytest.raises(FittingError, match="collapsed to a constant output"):
+        fit(SphereSDF(), samples, targets, TOY, seed=0, device="cpu")
 
 
 def test_same_seed_same_weights_and_loss_curve_and_it_learns():
