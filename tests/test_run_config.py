@@ -41,8 +41,8 @@ def test_grid_bound_comes_from_the_machine_memory():
 
 
 def test_identity_diff_names_each_differing_setting():
-    a, b = RunConfig(grid=64), RunConfig(grid=32, budget="tiny", workers=2, seeds=(0, 1))
-    assert a.identity_diff(b) == ["budget='cpu' there, 'tiny' now", "grid=64 there, 32 now"]  # not workers/seeds
+    a, b = RunConfig(grid=64), RunConfig(grid=32, budget="tiny", executor="process", workers=2, seeds=(0, 1))
+    assert a.identity_diff(b) == ["budget='cpu' there, 'tiny' now", "grid=64 there, 32 now"]  # not executor/workers/seeds
     assert a.merged_scope(b).seeds == (0, 1)
 
 

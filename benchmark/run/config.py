@@ -182,6 +182,8 @@ class RunConfig:
             raise ConfigError("--gpus-per-job must be >= 0 and --cpus-per-job > 0")
         if self.address is not None and self.executor != "ray":
             raise ConfigError("--address only applies to --executor ray")
+        if self.workers is not None and self.executor == "local":
+            raise ConfigError("--workers applies to --executor process or ray; the local executor runs one job at a time")
 
     # -- roles ------------------------------------------------------------------------------
     @classmethod
