@@ -85,6 +85,10 @@ class Method:
         return 3 if self.input_kind == "points" else 6
 
     # -- training ---------------------------------------------------------------------------
+    def fit_params(self) -> dict:
+        """The parameter values the fit reads (``Param(fit=True)``): they key the fitted weights."""
+        return {k: v for k, v in self.params.items() if self.parameters[k].fit}
+
     def network_inputs(self, samples) -> np.ndarray:
         """(M, input_dim) float32 inputs from the shared samples (points, or segments flattened)."""
         if self.input_kind == "points":

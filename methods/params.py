@@ -37,6 +37,7 @@ class Param:
     le: float | None = None
     choices: tuple[str, ...] | None = None
     neural_only: bool = False  # read only by the neural field's query (the exact field ignores it)
+    fit: bool = False  # read by the fit (its inputs, targets or loss): part of the fitted weights' cache key
 
     @property
     def kind(self) -> type:

@@ -19,6 +19,10 @@ Oracle: the exact segment field of every grid edge (``benchmark.fields``, disk-c
 triangle's normal.
 Neural: sparse query of :mod:`methods.query` on the edges: coarse edges (length S h) with
 o_hat > ``o_low`` (0.02) mark the blocks they touch; far edges are "no hit".
+Training segments (``edge_segments``, default 0 = the paper's): a fraction of the shared segments
+(u, v) may be replaced by grid-edge-like ones (u, u + L e), e a random signed axis, L
+``edge_length``: the queries E-DC makes are axis-aligned edges of length h, which the paper's
+isotropic segments cover only in part. A deviation from the paper, off by default.
 """
 
 from __future__ import annotations
@@ -35,6 +39,8 @@ from methods import query
 
 #: Weight of the s term (SPEC section 5).
 S_WEIGHT = 10.0
+#: Default length of the optional grid-edge-like training segments: a 128^3 grid edge, 2 / 127.
+EDGE_LENGTH = 2.0 / 127.0
 
 
 def _logit(p: float) -> float:
@@ -84,10 +90,33 @@ class SALSMethod(Method):
                        choices=("fan4", "quad2", "fan4-adaptive")),
         "o_low": Param(0.02, "coarse edges with o_hat > this mark blocks for the sparse query", gt=0, lt=1, neural_only=True),
         "stride": Param(query.DEFAULT_STRIDE, "coarse stride of the sparse query", ge=1, neural_only=True),
+        "edge_segments": Param(0.0, "fraction of the training segments replaced by grid-edge-like ones "
+                               "(u, u + edge_length e), e a random signed axis: a deviation from the paper (0)",
+                               ge=0, le=1, neural_only=True, fit=True),
+        "edge_length": Param(EDGE_LENGTH, "length of the grid-edge-like training segments, canonical units "
+                             "(default: a 128^3 grid edge)", gt=0, neural_only=True, fit=True),
     }
 
+    def training_segments(self, samples) -> np.ndarray:
+        """The (M, 2, 3) segments the network trains on: the shared samples' segments, with the
+        fraction ``edge_segments`` of them (the samples whose ``edge_draw`` is below it) replaced by
+        ``(u, u + edge_length e)``, ``e`` the sample's ``edge_direction``; ``u`` stays the shared point."""
+        segments = samples.segments
+        swap = np.flatnonzero(samples.edge_draw < self.params["edge_segments"])
+        if len(swap) == 0:
+            return segments
+        d = samples.edge_direction[swap].astype(np.int64)
+        step = np.zeros((len(swap), 3), dtype=np.float32)
+        step[np.arange(len(swap)), d % 3] = np.where(d < 3, 1.0, -1.0) * self.params["edge_length"]
+        segments = segments.copy()
+        segments[swap, 1] = segments[swap, 0] + step
+        return segments
+
+    def network_inputs(self, samples) -> np.ndarray:
+        return np.ascontiguousarray(self.training_segments(samples).reshape(len(samples), 6), dtype=np.float32)
+
     def training_targets(self, fields, samples) -> dict[str, np.ndarray]:
-        return segment_targets(fields, samples.segments)
+        return segment_targets(fields, self.training_segments(samples))
 
     def loss(self, prediction, targets, inputs=None, model=None):
         return segment_loss(prediction, targets)

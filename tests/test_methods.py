@@ -148,6 +148,37 @@ def test_oracle_crossing_planes_sals_reproduces_the_nonmanifold_crossing(tmp_pat
     assert abs(_area(ex.vertices, ex.faces) / _area(V, F) - 1) < 0.15
 
 
+def test_sals_edge_like_training_segments_replace_a_fraction_and_key_the_fit(sphere):
+    """edge_segments = 0 (the paper's) trains on the shared segments as they are; 0.4 replaces the
+    samples whose edge_draw < 0.4 by (u, u +- L e_axis), u unchanged, labelled from the new segments."""
+    V, F, fields, samples = sphere
+    paper = get_method("sals")
+    assert paper.training_segments(samples) is samples.segments
+    assert paper.fit_params() == {"edge_segments": 0.0, "edge_length": 2 / 127}
+    assert get_method("sdf").fit_params() == {}
+    L = 0.05
+    method = get_method("sals", edge_segments=0.4, edge_length=L)
+    seg = method.training_segments(samples)
+    swapped = samples.edge_draw < 0.4
+    np.testing.assert_array_equal(seg[:, 0], samples.segments[:, 0])
+    np.testing.assert_array_equal(seg[~swapped], samples.segments[~swapped])
+    step = seg[swapped, 1] - seg[swapped, 0]
+    d = samples.edge_direction[swapped]
+    expected = np.zeros_like(step)
+    expected[np.arange(len(d)), d % 3] = np.where(d < 3, L, -L)
+    np.testing.assert_allclose(step, expected, atol=1e-6)
+    assert abs(swapped.mean() - 0.4) < 0.02
+    inputs, targets = method.network_inputs(samples), method.training_targets(fields, samples)
+    np.testing.assert_array_equal(inputs, seg.reshape(-1, 6))
+    # the icosphere lies between radius 0.69 and 0.7 (its faces sag < 0.002): one end inside 0.69 and
+    # the other outside 0.7 is a hit; both inside 0.69 is none
+    ru, rv = np.linalg.norm(seg[:, 0], axis=1), np.linalg.norm(seg[:, 1], axis=1)
+    crossing = (np.minimum(ru, rv) < 0.69) & (np.maximum(ru, rv) > 0.7)
+    inside = np.maximum(ru, rv) < 0.69
+    assert crossing[swapped].sum() > 1000 and np.all(targets["o"][crossing] == 1)
+    assert np.all(targets["o"][inside] == 0)
+
+
 # -- neural mode ---------------------------------------------------------------------------------
 #: CD bounds (canonical units) of the tiny fit on a sphere of radius 0.7 at N = 32, seed 0.
 NEURAL_CD_BOUND = {"sdf": 0.03, "bof": 0.05, "udf": 0.05, "sals": 0.2}

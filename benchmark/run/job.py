@@ -193,7 +193,7 @@ def _job_body(spec: JobSpec, shape, device, timer: StageTimer, result: TaskResul
 
         weights_key = digest({"shape": result.shape_hash, "method": spec.method, "input": method.input_kind,
                               "output_dim": method.output_dim, "budget": dataclasses.asdict(get_budget(spec.budget, spec.budget_params)),
-                              "seed": spec.seed, "code": fit_code_digest(method)})
+                              "seed": spec.seed, "code": fit_code_digest(method), "fit_params": method.fit_params()})
     mesh_key = digest({"shape": result.shape_hash, "method": spec.method, "params": method.params, "mode": spec.mode,
                        "grid": spec.grid, "weights": weights_key, "code": extraction_code_digest(method)})
     cached = None if spec.checkpoints else caches.load_mesh(spec.method, mesh_key)  # checkpoints need the fit
