@@ -20,7 +20,8 @@ class _FakeGridMethod(Method):
     kind = "sdf"
 
     def training_targets(self, fields, samples):
-        return {"target": np.asarray(getattr(fields, self.kind)(samples.points), dtype=np.float32)}
+        target = np.asarray(getattr(fields, self.kind)(samples.points), dtype=np.float32)
+        return {"target": target + np.float32(self.params.get("offset", 0.0))}
 
     def loss(self, prediction, targets, inputs=None, model=None):
         import torch
@@ -55,7 +56,9 @@ class FakeSDF(_FakeGridMethod):
     name = "test_sdf"
     description = "test-only: marching cubes on the exact SDF"
     display_order = 1
-    parameters = {"level": Param(0.0, "iso level", gt=-0.1, lt=0.1)}
+    parameters = {"level": Param(0.0, "iso level", gt=-0.1, lt=0.1),
+                  "offset": Param(0.0, "added to the training targets (a setting the fit reads)", ge=-0.05, le=0.05,
+                                  neural_only=True, fit=True)}
 
 
 class FakeOcc(_FakeGridMethod):

@@ -62,6 +62,16 @@ def test_a_2x2_extraction_sweep_gives_four_rows_with_sweep_columns_fits_once_and
     assert record["config"]["sweep"] == {"test_sdf.level": [0.0, 0.01], "grid": [20, 24]}
 
 
+def test_a_sweep_of_a_setting_the_fit_reads_fits_each_value(fakes, tmp_path):
+    """test_sdf.offset is a Param(fit=True): it keys the weights, so the two points do not share a fit
+    (they would, wrongly, if only the extraction settings were told apart)."""
+    out = tmp_path / "run"
+    assert main(neural_args(out, tmp_path / "cache", "--sweep", "test_sdf.offset=0,0.02", "--no-ceiling")) == 0
+    df = results(out)
+    assert list(df["sweep.test_sdf.offset"]) == [0.0, 0.02] and df["fitted"].sum() == 2
+    assert df["fit_loss"].nunique() == 2
+
+
 def test_a_budget_sweep_fits_each_value_and_adds_one_oracle_ceiling(fakes, tmp_path):
     out = tmp_path / "run"
     assert main(neural_args(out, tmp_path / "cache", "--sweep", "budget.iterations=20,40")) == 0
