@@ -52,17 +52,12 @@ class Samples:
     points : (M, 3) x = c + e1, the samples of point-based fields.
     segments : (M, 2, 3) (u, v) = (c + e1, c + e2), with u == points.
     group : (M,) int8 index into :data:`GROUPS`.
-    edge_direction : (M,) int8 in 0..5, a direction ``(-1)^(d // 3) e_(d % 3)`` per sample, and
-    edge_draw : (M,) float32 uniform in [0, 1): drawn for the grid-edge-like training segments
-        ``(u, u + L e)`` an option of ``sals`` swaps in (``edge_segments``); unused otherwise.
     """
 
     centres: np.ndarray
     points: np.ndarray
     segments: np.ndarray
     group: np.ndarray
-    edge_direction: np.ndarray
-    edge_draw: np.ndarray
 
     def __len__(self) -> int:
         return len(self.points)
@@ -92,8 +87,7 @@ def sample_training_data(vertices: np.ndarray, faces: np.ndarray, total: int, rn
     rng : numpy.random.Generator
         The one source of every draw, in this order: the surface centres of the three surface
         groups (:func:`benchmark.surface.sample_surface`), the bbox centres, the space centres,
-        then the noise ``e1`` and ``e2``, then ``edge_direction`` and ``edge_draw`` (last, so
-        the arrays before them are those of a sampler without them).
+        then the noise ``e1`` and ``e2``.
 
     Returns
     -------
@@ -127,6 +121,4 @@ def sample_training_data(vertices: np.ndarray, faces: np.ndarray, total: int, rn
     e2 = rng.standard_normal((total, 3)) * sigma
     points = (c + e1).astype(np.float32)
     segments = np.stack([points, (c + e2).astype(np.float32)], axis=1)
-    edge_direction = rng.integers(0, 6, total).astype(np.int8)
-    edge_draw = rng.random(total, dtype=np.float32)
-    return Samples(c.astype(np.float32), points, segments, np.concatenate(groups), edge_direction, edge_draw)
+    return Samples(c.astype(np.float32), points, segments, np.concatenate(groups))

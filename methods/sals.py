@@ -27,6 +27,8 @@ isotropic segments cover only in part. A deviation from the paper, off by defaul
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 from scipy.special import expit
 import torch
@@ -60,6 +62,16 @@ def segment_loss(prediction, targets):
     bce = F.binary_cross_entropy_with_logits(prediction[:, 0], o)
     s_err = (torch.sigmoid(prediction[:, 1]) - targets["s"]).abs()
     return S_WEIGHT * (s_err * o).sum() / o.sum().clamp(min=1.0) + bce
+
+
+def edge_draws(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per sample a signed axis ``d`` in 0..5 (``(-1)^(d // 3) e_(d % 3)``) and a uniform draw in [0, 1),
+    from a generator seeded by the SHA-256 of the shared points: a function of the shared samples
+    (same shape and seed, same draws), drawn without touching the sampler's stream, so every other
+    sample and every later draw of the run stay what they are without the option."""
+    digest = hashlib.sha256(np.ascontiguousarray(points, dtype=np.float32).tobytes()).digest()
+    rng = np.random.default_rng(np.frombuffer(digest, dtype=np.uint32))
+    return rng.integers(0, 6, len(points)).astype(np.int8), rng.random(len(points), dtype=np.float32)
 
 
 def nearer_endpoint_normals(s: np.ndarray, grad: np.ndarray) -> np.ndarray:
@@ -99,13 +111,14 @@ class SALSMethod(Method):
 
     def training_segments(self, samples) -> np.ndarray:
         """The (M, 2, 3) segments the network trains on: the shared samples' segments, with the
-        fraction ``edge_segments`` of them (the samples whose ``edge_draw`` is below it) replaced by
-        ``(u, u + edge_length e)``, ``e`` the sample's ``edge_direction``; ``u`` stays the shared point."""
+        fraction ``edge_segments`` of them replaced by ``(u, u + edge_length e)``, ``e`` a random signed
+        axis; ``u`` stays the shared point. Which samples and which axes: :func:`edge_draws`."""
         segments = samples.segments
-        swap = np.flatnonzero(samples.edge_draw < self.params["edge_segments"])
-        if len(swap) == 0:
+        if self.params["edge_segments"] == 0:
             return segments
-        d = samples.edge_direction[swap].astype(np.int64)
+        direction, draw = edge_draws(samples.points)
+        swap = np.flatnonzero(draw < self.params["edge_segments"])
+        d = direction[swap].astype(np.int64)
         step = np.zeros((len(swap), 3), dtype=np.float32)
         step[np.arange(len(swap)), d % 3] = np.where(d < 3, 1.0, -1.0) * self.params["edge_length"]
         segments = segments.copy()

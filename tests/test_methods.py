@@ -14,6 +14,7 @@ from benchmark.timing import StageTimer, stage
 from methods.base import METHODS, Method, available_methods, get_method
 from methods.fitting import BUDGETS, fit
 from methods.params import Param
+from methods.sals import edge_draws
 
 N_POINTS = 30_000  # metric samples: enough to separate sharp from rounded at N = 40
 
@@ -150,7 +151,7 @@ def test_oracle_crossing_planes_sals_reproduces_the_nonmanifold_crossing(tmp_pat
 
 def test_sals_edge_like_training_segments_replace_a_fraction_and_key_the_fit(sphere):
     """edge_segments = 0 (the paper's) trains on the shared segments as they are; 0.4 replaces the
-    samples whose edge_draw < 0.4 by (u, u +- L e_axis), u unchanged, labelled from the new segments."""
+    samples whose draw < 0.4 by (u, u +- L e_axis), u unchanged, labelled from the new segments."""
     V, F, fields, samples = sphere
     paper = get_method("sals")
     assert paper.training_segments(samples) is samples.segments
@@ -159,11 +160,15 @@ def test_sals_edge_like_training_segments_replace_a_fraction_and_key_the_fit(sph
     L = 0.05
     method = get_method("sals", edge_segments=0.4, edge_length=L)
     seg = method.training_segments(samples)
-    swapped = samples.edge_draw < 0.4
+    direction, draw = edge_draws(samples.points)
+    again = edge_draws(samples.points.copy())
+    assert np.array_equal(direction, again[0]) and np.array_equal(draw, again[1])  # a function of the samples
+    assert set(np.unique(direction)) == set(range(6)) and np.allclose(np.bincount(direction) / len(draw), 1 / 6, atol=0.02)
+    swapped = draw < 0.4
     np.testing.assert_array_equal(seg[:, 0], samples.segments[:, 0])
     np.testing.assert_array_equal(seg[~swapped], samples.segments[~swapped])
     step = seg[swapped, 1] - seg[swapped, 0]
-    d = samples.edge_direction[swapped]
+    d = direction[swapped]
     expected = np.zeros_like(step)
     expected[np.arange(len(d)), d % 3] = np.where(d < 3, L, -L)
     np.testing.assert_allclose(step, expected, atol=1e-6)

@@ -67,24 +67,3 @@ def test_rejects_non_positive_count_and_a_seed_instead_of_a_generator(unit_spher
     with pytest.raises(TypeError, match="^rng must be a numpy.random.Generator, got int$"):
         sample_training_data(*unit_sphere, 100, 7)
 
-
-def test_edge_draws_come_last_and_cover_the_six_directions(unit_sphere):
-    """edge_direction / edge_draw are drawn after everything else: replaying the stream up to e2 by
-    hand leaves exactly them; directions are uniform over the 6 signed axes, draws over [0, 1)."""
-    V, F = unit_sphere
-    M = 60_000
-    s = sample_training_data(V, F, M, np.random.default_rng(5))
-    assert s.edge_direction.dtype == np.int8 and set(np.unique(s.edge_direction)) == set(range(6))
-    assert np.allclose(np.bincount(s.edge_direction) / M, 1 / 6, atol=0.01)
-    assert s.edge_draw.dtype == np.float32 and 0 <= s.edge_draw.min() and s.edge_draw.max() < 1
-    assert abs(float(np.mean(s.edge_draw < 0.3)) - 0.3) < 0.01
-    rng = np.random.default_rng(5)
-    counts = group_counts(M)
-    n_surface = int(sum(c for c, g in zip(counts, GROUPS) if g[2] == "surface"))
-    sample_surface(V, F, n_surface, rng)
-    for count, (_, _, kind, _) in zip(counts, GROUPS):
-        if kind != "surface":  # the bbox and space centres
-            rng.random((count, 3))
-    rng.standard_normal((M, 3)), rng.standard_normal((M, 3))  # e1, e2
-    assert np.array_equal(rng.integers(0, 6, M).astype(np.int8), s.edge_direction)
-    assert np.array_equal(rng.random(M, dtype=np.float32), s.edge_draw)
