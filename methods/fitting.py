@@ -224,8 +224,8 @@ def check_not_constant(model: torch.nn.Module, inputs: torch.Tensor, where: str)
     spread = (out.max(dim=0).values - out.min(dim=0).values).max().item() if len(out) > 1 else 1.0
     if spread < CONSTANT_PTP:
         raise FittingError(f"the network collapsed to a constant output (spread {spread:.2g} over "
-                           f"{len(out)} training inputs) in {where}: its hidden units died; a longer "
-                           f"budget.warmup_fraction or a lower budget.lr may fit it")
+                           f"{len(out)} training inputs) in {where}: its hidden units died; a longer warm-up "
+                           f"(--budget-param warmup_fraction=0.1) or a lower lr (--budget-param lr=...) may fit it")
 
 
 def parameter_groups(model: torch.nn.Module, budget: Budget) -> list[dict]:

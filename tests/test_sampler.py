@@ -66,4 +66,3 @@ def test_rejects_non_positive_count_and_a_seed_instead_of_a_generator(unit_spher
     # a bare seed would be a second seed derivation: refused in one line
     with pytest.raises(TypeError, match="^rng must be a numpy.random.Generator, got int$"):
         sample_training_data(*unit_sphere, 100, 7)
-
