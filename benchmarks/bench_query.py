@@ -1,8 +1,10 @@
-"""Sparse vs dense grid queries at 128^3 (methods/query.py).
+"""Sparse vs dense grid queries at 128^3 (methods/query.py), and grid edges with shared endpoints.
 
 Run the ratio table (interleaved, one process):  .venv/bin/python benchmarks/bench_query.py [N] [threads]
 or as pytest-benchmark:  .venv/bin/pytest benchmarks/bench_query.py -o python_files='bench_*.py' --benchmark-enable -q
 Goal: sparse / dense query time <= 0.2 at N = 128 for points (sdf) and edges (sals, 6.24M edges dense).
+Goal: a band of grid edges through ``evaluate_grid_edges`` (each endpoint encoded once) costs <= 0.6x
+the plain per-edge forward, with the *cpu* budget's grid network (16/32/64 x 4, 3 x 64 head).
 
 The network is the *quick* architecture (5 linear layers, width 128) whose output is replaced by an
 analytic sphere field (radius 0.6; points: signed distance; edges: hit logit +-30 and the linear
@@ -63,9 +65,35 @@ def sparse_edges(N):
                                    edge_fill=np.array([-30.0, 0.0], np.float32))
 
 
+def band_edges(N, width=0.05):
+    """Flat ids of the grid edges whose midpoint lies within ``width`` of the sphere |x| = R (a surface
+    band like the sparse query's), and the cpu budget's segment network with random grid values."""
+    u, v = query.edge_inputs(N).reshape(-1, 2, 3).transpose(1, 0, 2)
+    ids = np.flatnonzero(np.abs(np.linalg.norm((u + v) / 2, axis=1) - R) < width)
+    net = make_network(6, 2, **BUDGETS["cpu"].network_config())
+    with torch.no_grad():
+        for level in net.encoder.levels:
+            level.normal_(0, 0.1)
+    return net, ids
+
+
+def plain_edges(net, N, ids):
+    return query.evaluate(net, query.edge_inputs(N, ids))
+
+
+def shared_endpoint_edges(net, N, ids):
+    return query.evaluate_grid_edges(net, N, ids)
+
+
 @pytest.mark.parametrize("fn", [dense_points, sparse_points, dense_edges, sparse_edges])
 def test_query_128(benchmark, fn):
     benchmark.pedantic(fn, args=(128,), rounds=1, iterations=1)
+
+
+@pytest.mark.parametrize("fn", [plain_edges, shared_endpoint_edges])
+def test_band_edges_128(benchmark, fn):
+    net, ids = band_edges(128)
+    benchmark.pedantic(fn, args=(net, 128, ids), rounds=3, iterations=1)
 
 
 def main(N=128, threads=None):
@@ -88,6 +116,16 @@ def main(N=128, threads=None):
     print(f"{'kind':7s} {'dense s':>8s} {'sparse s':>9s} {'time ratio':>10s} {'evaluated':>10s} {'agreement':>10s}")
     for kind, td, ts, ratio, frac, agree in rows:
         print(f"{kind:7s} {td:8.2f} {ts:9.2f} {ratio:10.3f} {frac:10.3f} {agree:10.5f}")
+    net, ids = band_edges(N)
+    times = {fn.__name__: [] for fn in (plain_edges, shared_endpoint_edges)}
+    for _ in range(3):  # interleaved rounds, medians
+        for fn in (plain_edges, shared_endpoint_edges):
+            t0 = time.perf_counter()
+            fn(net, N, ids)
+            times[fn.__name__].append(time.perf_counter() - t0)
+    plain, shared = (float(np.median(t)) for t in times.values())
+    print(f"band of {len(ids):,} edges, cpu grid network: plain {plain:.2f} s, shared endpoints {shared:.2f} s, "
+          f"ratio {shared / plain:.3f}")
 
 
 if __name__ == "__main__":

@@ -18,6 +18,12 @@ Sparse coarse-to-fine strategy (the same for every method)
 4. Dilate the marked blocks by ``dilate`` blocks (26-neighbourhood, default 1).
 5. Evaluate the fine grid points (or fine edges with both endpoints) in marked blocks.
 
+Edges (coarse and fine) go through :func:`evaluate_point_pairs`: a grid point is an endpoint of up
+to 6 edges, and the segment networks of :mod:`methods.network` are split after their first layer
+into one term per endpoint, so each point is encoded once and an edge costs the rest of the network
+(measured on 3 fitted ABC parts at N = 128, grid backbone: the SALS query took 1.35 / 3.2 / 1.3 s
+instead of 1.55 / 4.7 / 1.9 s).
+
 Fill values where nothing is evaluated ("far"): point fields get the *trilinear upsampling of the
 coarse values* (so a far point keeps the side of the level set its block's corners have: an SDF
 stays signed, an occupancy stays inside/outside, a UDF stays >= the margin); segment fields get
@@ -35,15 +41,19 @@ import numpy as np
 import torch
 from scipy.ndimage import binary_dilation
 
-from benchmark.grid import LOWER, edge_endpoint_values, edge_endpoints, num_edges, spacing
+from benchmark.grid import LOWER, edge_endpoint_values, edge_endpoints, edge_index_to_ijk_axis, num_edges, spacing
 from methods.device import get_device, synchronize
+from methods.network import endpoint_split
 
 #: Rows per forward pass (ENVIRONMENT.md: 16k-65k chunks are much faster than 1M on the CPU).
-DEFAULT_CHUNK = 32_768
+DEFAULT_CHUNK = 32768
 #: Rows per forward + backward pass for input gradients.
 GRAD_CHUNK = 16_384
 #: Coarse stride S of the sparse strategy.
 DEFAULT_STRIDE = 4
+#: Grid edges per pass of :func:`evaluate_grid_edges` (their endpoints' first-layer terms are held
+#: at once: ~1/3 as many points, 2 x width floats each).
+SPLIT_EDGES = 1 << 18
 
 
 # ---------------------------------------------------------------------------------------------
@@ -104,6 +114,69 @@ def edge_inputs(N: int, edge_ids: np.ndarray | None = None) -> np.ndarray:
     return np.concatenate([u, v], axis=1)
 
 
+def evaluate_point_pairs(model, points: np.ndarray, iu: np.ndarray, iv: np.ndarray, device=None,
+                         chunk: int = DEFAULT_CHUNK) -> np.ndarray:
+    """A segment network on the segments ``(points[iu], points[iv])``: (K, out_dim) float32, the
+    values of ``evaluate(model, [points[iu], points[iv]])`` up to float rounding.
+
+    For the networks :func:`methods.network.endpoint_split` cuts (both backbones' segment
+    networks) each point is encoded once (the feature grid and the first layer, split into one term
+    per endpoint) and each segment adds its endpoints' terms and runs the rest of the network; any
+    other model is evaluated on the ``[u, v]`` rows.
+    """
+    points = np.ascontiguousarray(points, dtype=np.float32)
+    split = endpoint_split(model)
+    if split is None or not len(iu):
+        return evaluate(model, np.concatenate([points[iu], points[iv]], axis=1), device, chunk)
+    device = _model_device(model, device)
+    outs = []
+    with torch.inference_mode():
+        P = torch.from_numpy(points).to(device)
+        terms = [split.terms(P[i:i + chunk]) for i in range(0, len(P), chunk)]
+        A = torch.cat([a for a, _ in terms])
+        B = torch.cat([b for _, b in terms])
+        iu = torch.from_numpy(np.asarray(iu, dtype=np.int64)).to(device)
+        iv = torch.from_numpy(np.asarray(iv, dtype=np.int64)).to(device)
+        for i in range(0, len(iu), chunk):
+            y = split.tail(A.index_select(0, iu[i:i + chunk]) + B.index_select(0, iv[i:i + chunk]))
+            outs.append(y.float().cpu().numpy())
+    return np.concatenate(outs)
+
+
+def evaluate_grid_edges(model, N: int, edge_ids: np.ndarray, device=None, chunk: int = DEFAULT_CHUNK,
+                        edges_per_pass: int = SPLIT_EDGES) -> np.ndarray:
+    """A segment network on grid edges (flat ids): (K, out_dim) float32, the values of
+    ``evaluate(model, edge_inputs(N, edge_ids))`` up to float rounding.
+
+    A grid point is an endpoint of up to 6 edges; :func:`evaluate_point_pairs` encodes it once per
+    pass (for the grid backbone at N = 128 an edge then costs about what a point query costs).
+    Passes take ``edges_per_pass`` edges in the order of their lower endpoint, so each pass holds a
+    slab of points (2 x width floats each; a slab's boundary layer is encoded again by the next).
+    """
+    ids = np.asarray(edge_ids, dtype=np.int64)
+    ijk, axis = edge_index_to_ijk_axis(N, ids)
+    lower = (ijk[:, 0] * N + ijk[:, 1]) * N + ijk[:, 2]  # flat point ids, 'ij' order
+    upper = lower + np.array([N * N, N, 1], dtype=np.int64)[axis]
+    order = np.argsort(lower, kind="stable")  # the flat edge order is 3 runs sorted by lower point
+    parts = []
+    for start in range(0, len(ids), edges_per_pass):
+        sel = order[start:start + edges_per_pass]
+        lo, hi = lower[sel], upper[sel]
+        first = lo.min()
+        used = np.zeros(hi.max() - first + 1, dtype=bool)
+        used[lo - first] = True
+        used[hi - first] = True
+        row = np.cumsum(used) - 1  # point id - first -> row in this pass's points
+        points = np.stack(np.unravel_index(np.flatnonzero(used) + first, (N, N, N)), axis=1)
+        parts.append(evaluate_point_pairs(model, point_inputs(N, points), row[lo - first], row[hi - first],
+                                          device, chunk))
+    if not parts:
+        return evaluate(model, np.zeros((0, 6), np.float32), device, chunk)
+    out = np.empty((len(ids), parts[0].shape[1]), dtype=np.float32)
+    out[order] = np.concatenate(parts)
+    return out
+
+
 def dense_grid_points(model, N: int, device=None, chunk: int = DEFAULT_CHUNK) -> np.ndarray:
     """The network on all N^3 grid points: (N, N, N, out_dim) float32 ('ij' order)."""
     c = (LOWER + np.arange(N) * spacing(N)).astype(np.float32)
@@ -119,7 +192,7 @@ def dense_grid_edges(model, N: int, device=None, chunk: int = DEFAULT_CHUNK) -> 
     """The network on all 3 (N - 1) N^2 grid edges, flat edge order: (E, out_dim) float32."""
     E = num_edges(N)
     big = 1 << 20  # endpoints generated in blocks of edges
-    outs = [evaluate(model, edge_inputs(N, np.arange(i, min(i + big, E))), device, chunk) for i in range(0, E, big)]
+    outs = [evaluate_grid_edges(model, N, np.arange(i, min(i + big, E)), device, chunk) for i in range(0, E, big)]
     return np.concatenate(outs)
 
 
@@ -222,17 +295,15 @@ def sparse_grid_points(model, N: int, near: Callable[[np.ndarray], np.ndarray], 
     return values, mask, info
 
 
-def _coarse_edges(N: int, cidx: np.ndarray):
-    """Per axis: (u, v) integer fine indices of the coarse edges, shaped (nb or nc per axis..., 3)."""
-    nc = len(cidx)
+def _coarse_edges(nc: int):
+    """Per axis: the coarse edges as (lower, upper) flat ids of the coarse grid's nc^3 points ('ij'
+    order) and the shape of that axis' edge array (nc - 1 along the axis, nc elsewhere)."""
     out = []
     for a in range(3):
-        ranges = [np.arange(nc)] * 3
-        ranges[a] = np.arange(nc - 1)
-        I = np.stack(np.meshgrid(*ranges, indexing="ij"), axis=-1)  # coarse index of u
-        J = I.copy()
-        J[..., a] += 1
-        out.append((cidx[I], cidx[J]))
+        shape = [nc, nc, nc]
+        shape[a] = nc - 1
+        lower = np.ravel_multi_index(np.indices(shape).reshape(3, -1), (nc, nc, nc))
+        out.append((lower, lower + (nc * nc, nc, 1)[a], tuple(shape)))
     return out
 
 
@@ -251,19 +322,18 @@ def sparse_grid_edges(model, N: int, near: Callable[[np.ndarray], np.ndarray], d
     unevaluated edges hold ``edge_fill`` (raw network-output units; broadcast over C).
     """
     device = _model_device(model, device)
-    h = spacing(N)
     t0 = time.perf_counter()
     cidx = coarse_indices(N, stride)
     nc = len(cidx)
     nb = nc - 1
     blocks = np.zeros((nb, nb, nb), dtype=bool)
-    n_coarse = 0
-    for a, (U, V) in enumerate(_coarse_edges(N, cidx)):
-        shape = U.shape[:3]
-        inp = np.concatenate([LOWER + U.reshape(-1, 3) * h, LOWER + V.reshape(-1, 3) * h], axis=1)
-        vals = evaluate(model, inp.astype(np.float32), device, chunk)
-        n_coarse += len(vals)
-        hit = np.asarray(near(vals), dtype=bool).reshape(shape)
+    edges = _coarse_edges(nc)
+    cg = np.stack(np.meshgrid(cidx, cidx, cidx, indexing="ij"), axis=-1).reshape(-1, 3)
+    coarse = evaluate_point_pairs(model, point_inputs(N, cg), np.concatenate([lo for lo, _, _ in edges]),
+                                  np.concatenate([hi for _, hi, _ in edges]), device, chunk)
+    starts = np.cumsum([0] + [len(lo) for lo, _, _ in edges])
+    for a, (_, _, shape) in enumerate(edges):
+        hit = np.asarray(near(coarse[starts[a]:starts[a + 1]]), dtype=bool).reshape(shape)
         others = [b for b in range(3) if b != a]
         for o1 in (slice(0, nb), slice(1, nb + 1)):  # an edge at coarse index p touches blocks p-1, p
             for o2 in (slice(0, nb), slice(1, nb + 1)):
@@ -275,7 +345,7 @@ def sparse_grid_edges(model, N: int, near: Callable[[np.ndarray], np.ndarray], d
     mask = edges_in_points(N, blocks_to_points(N, cidx, blocks))
     ids = np.flatnonzero(mask)
     t2 = time.perf_counter()
-    fine = evaluate(model, edge_inputs(N, ids), device, chunk) if len(ids) else None
+    fine = evaluate_grid_edges(model, N, ids, device, chunk) if len(ids) else None
     C = fine.shape[1] if fine is not None else (model.config["out_dim"] if hasattr(model, "config") else 1)
     values = np.empty((num_edges(N), C), dtype=np.float32)
     values[:] = edge_fill
@@ -283,7 +353,7 @@ def sparse_grid_edges(model, N: int, near: Callable[[np.ndarray], np.ndarray], d
         values[ids] = fine
     synchronize(device)
     t3 = time.perf_counter()
-    info = SparseInfo(stride, n_coarse, len(ids), num_edges(N), int(blocks.sum()), int(blocks.size),
+    info = SparseInfo(stride, len(coarse), len(ids), num_edges(N), int(blocks.sum()), int(blocks.size),
                       {"coarse_s": t1 - t0, "mark_s": t2 - t1, "fine_s": t3 - t2})
     return values, mask, info
 

@@ -18,7 +18,8 @@ same direction), by autograd in chunks, only for intersected edges.
 Oracle: the exact segment field of every grid edge (``benchmark.fields``, disk-cached) and the hit
 triangle's normal.
 Neural: sparse query of :mod:`methods.query` on the edges: coarse edges (length S h) with
-o_hat > ``o_low`` (0.02) mark the blocks they touch; far edges are "no hit".
+o_hat > ``o_low`` (0.02) mark the blocks they touch; far edges are "no hit"; each grid point is
+encoded once for all the edges it ends (:func:`methods.query.evaluate_grid_edges`).
 Training segments (``edge_segments``, default 0 = the paper's): a fraction of the shared segments
 (u, v) may be replaced by grid-edge-like ones (u, u + L e), e a random signed axis, L
 ``edge_length``: the queries E-DC makes are axis-aligned edges of length h, which the paper's

@@ -5,8 +5,8 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from methods.network import (ACTIVATIONS, GRID_INIT_SCALE, SEGMENT_SCALE, FeatureGrid, GridNetwork, fast_softplus,
-                             make_network, trilinear)
+from methods.network import (ACTIVATIONS, GRID_INIT_SCALE, SEGMENT_SCALE, FeatureGrid, GridNetwork, endpoint_split,
+                             fast_softplus, make_network, trilinear)
 
 BETA = 100.0
 
@@ -174,6 +174,27 @@ def test_segments_share_one_encoder_and_swapping_u_v_swaps_the_code_blocks():
     assert torch.equal(codes[0][:, 2 * n:], (v - u) / SEGMENT_SCALE)
     assert torch.equal(codes[1][:, :2 * n], torch.cat([codes[0][:, n:2 * n], codes[0][:, :n]], dim=1))
     assert torch.equal(codes[1][:, 2 * n:], (u - v) / SEGMENT_SCALE)
+
+
+@pytest.mark.parametrize("backbone", ["mlp", "grid"])
+def test_endpoint_split_recomposes_the_segment_network(backbone):
+    """tail(A(u) + B(v)) is the network's output for (u, v), in float64 to 1e-12, for both backbones
+    (random grid values, so the encoder matters); points networks and foreign modules are not split."""
+    torch.manual_seed(0)
+    config = GRID if backbone == "grid" else dict(depth=4, width=32)
+    net = make_network(6, 2, **config).double()
+    with torch.no_grad():
+        for level in getattr(getattr(net, "encoder", None), "levels", []):
+            level.normal_()
+    split = endpoint_split(net)
+    g = torch.Generator().manual_seed(1)
+    u, v = (torch.rand(500, 3, generator=g, dtype=torch.float64) * 2.2 - 1.1 for _ in range(2))
+    A, _ = split.terms(u)
+    _, B = split.terms(v)
+    with torch.no_grad():
+        torch.testing.assert_close(split.tail(A + B), net(torch.cat([u, v], dim=1)), rtol=0, atol=1e-12)
+    assert endpoint_split(make_network(3, 1, **config)) is None
+    assert endpoint_split(torch.nn.Linear(6, 2)) is None
 
 
 def test_backbone_errors():

@@ -42,6 +42,33 @@ class PlaneSegmentNet(torch.nn.Module):
         return torch.stack([torch.where(hit, 30.0, -30.0), torch.log(s / (1 - s))], dim=1) + 0 * self.dummy
 
 
+@pytest.mark.parametrize("backbone", ["mlp", "grid"])
+def test_grid_edges_with_shared_endpoints_equal_the_plain_forward(backbone):
+    """evaluate_grid_edges encodes each endpoint once per pass: the same outputs as the network on the
+    edges' [u, v] rows (float32 rounding), for scattered edges of all three axes, passes small enough to
+    cut the slab in many places, and the dense grid; a module it cannot split takes the plain path."""
+    from methods.network import make_network
+
+    torch.manual_seed(0)
+    config = dict(backbone="grid", grid_resolutions=(4, 8), grid_channels=2) if backbone == "grid" else {}
+    net = make_network(6, 2, depth=3, width=16, **config)
+    with torch.no_grad():
+        for level in getattr(getattr(net, "encoder", None), "levels", []):
+            level.normal_()
+    N = 12
+    ids = np.sort(np.random.default_rng(0).choice(num_edges(N), 1500, replace=False))
+    plain = query.evaluate(net, query.edge_inputs(N, ids))
+    for per_pass in (1500, 97):
+        np.testing.assert_allclose(query.evaluate_grid_edges(net, N, ids, edges_per_pass=per_pass, chunk=50),
+                                   plain, rtol=0, atol=2e-5)
+    np.testing.assert_allclose(query.dense_grid_edges(net, N), query.evaluate(net, query.edge_inputs(N)), rtol=0,
+                               atol=2e-5)
+    assert query.evaluate_grid_edges(net, N, ids[:0]).shape == (0, 2)
+    plane = PlaneSegmentNet()
+    np.testing.assert_array_equal(query.evaluate_grid_edges(plane, N, ids),
+                                  query.evaluate(plane, query.edge_inputs(N, ids)))
+
+
 def test_coarse_indices_and_block_membership_by_hand():
     np.testing.assert_array_equal(query.coarse_indices(10, 4), [0, 4, 8, 9])
     cidx = query.coarse_indices(10, 4)
