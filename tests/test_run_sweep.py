@@ -167,6 +167,30 @@ def test_jobs_that_share_a_fit_are_scheduled_after_every_fitting_job(fakes, tmp_
                      ("job", "builtin_000", 0.01), ("job", "builtin_001", 0.01)]
 
 
+def test_a_k_sweep_runs_the_jobs_of_networks_trained_early_while_the_last_one_trains(tmp_path):
+    """Reconstruct jobs of one learned network (method, budget, training set) share its training
+    across shapes: the first job of each K trains, and the others follow in the order their
+    networks are trained, so a worker never waits on K = 50's lock with K = 10 jobs queued behind it."""
+    import trimesh
+
+    from benchmark.run.driver import _schedule
+    from benchmark.run.tasks import build_tasks
+
+    (tmp_path / "train").mkdir()
+    trimesh.creation.box().export(tmp_path / "train" / "box.ply")
+    args = build_parser().parse_args(["--task", "reconstruct", "--methods", "sals-knn", "--limit", "3", "--sweep",
+                                      "budget.k=10,50", "--train-dir", str(tmp_path / "train"), "--out",
+                                      str(tmp_path / "r")])
+    plan = resolve(configure(args, tmp_path / "r"))
+    floors, jobs = build_tasks(plan)
+    todo = sorted(floors + jobs, key=_schedule(plan, floors + jobs))
+    order = [(t.kind, t.shape[8:11], t.budget_params.get("k") if t.kind == "job" else None) for t in todo]
+    assert order == [("floor", "000", None), ("job", "000", 10), ("job", "000", 50), ("floor", "001", None),
+                     ("floor", "002", None), ("job", "001", 10), ("job", "002", 10), ("job", "001", 50),
+                     ("job", "002", 50)]
+    assert len({j.fit_identity() for j in jobs}) == 2  # one network per K, whatever the shape
+
+
 def test_a_parameter_only_the_neural_query_reads_gives_one_ceiling_job(tmp_path):
     from benchmark.run.tasks import build_tasks
 

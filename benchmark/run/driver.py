@@ -64,18 +64,25 @@ def record_result(db: ResultsDB, run_dir: RunDirectory, result: TaskResult, firs
 
 
 def _schedule(plan: Plan, todo: list):
-    """Sort key of the tasks: shape by shape, each shape's floor first; a job whose fit an earlier
-    job already does (a sweep of extraction settings) goes after every fitting job, so parallel
-    workers do not wait on each other's fits but find the weights in the cache."""
+    """Sort key of the tasks: shape by shape, each shape's floor first; a job whose network an
+    earlier job already fits or trains (a sweep of extraction settings; every shape of a learned
+    reconstruction method) goes after every job that fits one, so parallel workers do not wait on
+    each other's fits but find the weights in the cache. The followers are ordered by when their
+    network's first job comes: those of a network trained early run while a later one still trains
+    (a K sweep: K = 10 and 20 reconstruct while K = 50 trains), rather than one worker waiting on
+    the last network's lock with ready jobs queued behind it."""
     order = {s: i for i, s in enumerate(plan.shapes)}
-    seen: set[str] = set()
-    follower: dict[str, bool] = {}
-    for t in todo:
+    first: dict[str, int] = {}  # fit identity -> rank of the job that fits it, in table order
+    rank: dict[str, tuple[int, int]] = {}
+    for t in sorted(todo, key=lambda t: (order[t.shape], 0 if t.kind == "floor" else 1)):
         fit = t.fit_identity() if t.kind == "job" else None
-        follower[t.key] = fit is not None and fit in seen
-        if fit is not None:
-            seen.add(fit)
-    return lambda t: (follower[t.key], order[t.shape], 0 if t.kind == "floor" else 1)
+        if fit is None or fit not in first:
+            if fit is not None:
+                first[fit] = len(first)
+            rank[t.key] = (0, 0)
+        else:
+            rank[t.key] = (1, first[fit])
+    return lambda t: (*rank[t.key], order[t.shape], 0 if t.kind == "floor" else 1)
 
 
 def run(plan: Plan, run_dir: RunDirectory, record: dict, executor=None) -> RunOutcome:

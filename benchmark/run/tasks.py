@@ -116,10 +116,16 @@ class JobSpec(TaskSpec):
         return ident
 
     def fit_identity(self) -> str | None:
-        """What the job's fit depends on (the weights cache's key without the code): jobs of a sweep
-        that differ only in extraction settings share it. None for an oracle job."""
+        """What the job's network depends on (its cache key without the code): jobs that share it fit
+        or train it once. Encode: the shape's fit (jobs of a sweep that differ only in extraction
+        settings share it); reconstruct: the network a learned method trains across shapes (method,
+        budget, its overrides, training set: every shape's job shares it). None for an oracle job
+        and a method without a network."""
         if not self.uses_fitting:
             return None
+        if self.task == "reconstruct":
+            return digest({"task": self.task, "method": self.method, "budget": self.budget,
+                           "budget_params": self.budget_params, "train_dirs": list(self.train_dirs)})
         return digest({"dataset": self.dataset, "dataset_options": identity_options(self.dataset_options),
                        "shape": self.shape, "method": self.method, "budget": self.budget,
                        "budget_params": self.budget_params, "seed": self.seed})
