@@ -30,6 +30,8 @@ MESH_EXTENSIONS = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
 
 #: Largest side of the bounding box in the canonical frame (SPEC section 1).
 CANONICAL_SIZE = 1.99
+#: :attr:`Shape.kind` of a point cloud given without a GT mesh.
+NO_GT = "no GT"
 
 
 @dataclass(frozen=True)
@@ -70,9 +72,13 @@ class Shape:
     faces : (m, 3) int64 vertex indices.
     transform : maps the source file's frame to the canonical frame.
     source : where the shape came from (a path, or a generator description).
-    kind : 'closed', 'open' or 'nonmanifold' (what the dataset says it is, for tables).
+    kind : 'closed', 'open' or 'nonmanifold' (what the dataset says it is, for tables), or
+        :data:`NO_GT` for a point cloud without a GT mesh.
     points : (p, 3) float64 input point cloud in the same canonical frame, for datasets of point-cloud
         files (the reconstruct task then uses it instead of sampling the mesh); None otherwise.
+
+    A shape without faces has no GT (:attr:`has_gt`): a point cloud given without a mesh, in the
+    canonical frame of its own points; it can be reconstructed but not scored.
     """
 
     name: str
@@ -83,6 +89,11 @@ class Shape:
     kind: str = "closed"
     meta: dict = field(default_factory=dict)
     points: np.ndarray | None = None
+
+    @property
+    def has_gt(self) -> bool:
+        """True when the shape has a GT mesh to score against (False: a point cloud alone)."""
+        return len(self.faces) > 0
 
     def to_trimesh(self) -> trimesh.Trimesh:
         """A trimesh view of the arrays (no processing, no merging)."""

@@ -1,12 +1,15 @@
-"""``pointclouds``: a folder of point-cloud files, each with its GT mesh beside it (the reconstruct
-task's inputs given as files instead of sampled from a mesh).
+"""``pointclouds``: a folder of point-cloud files, each with its GT mesh beside it or alone (the
+reconstruct task's inputs given as files instead of sampled from a mesh).
 
 Files: ``<name>.xyz`` (text, one point per line, the first 3 columns; more columns such as normals are
 ignored, as the methods get no normals), ``<name>.npy`` ((P, >= 3) float array) or ``<name>.ply``
 (vertices only: a PLY with faces is a mesh, not a cloud). The GT is the mesh file
-``<name>.gt.<ext>`` (any mesh extension of :data:`datasets.io.MESH_EXTENSIONS`) in the same folder;
-a cloud without one is refused when loaded (it could not be scored). The canonical frame is the GT's
-(SPEC section 1), the cloud is moved with the same transform. Bad clouds (unreadable, empty, non-
+``<name>.gt.<ext>`` (any mesh extension of :data:`datasets.io.MESH_EXTENSIONS`) in the same folder.
+With a GT the canonical frame is the GT's (SPEC section 1) and the cloud moves with the same
+transform; the reconstruction is scored against it. A cloud without a GT (a scan) is a shape with
+no faces (:attr:`datasets.io.Shape.has_gt` False, kind :data:`datasets.io.NO_GT`) in the canonical
+frame of its own points: every method reconstructs it, the mesh and its validity counts are
+recorded, and no metric is computed (the tables list it apart). Bad clouds (unreadable, empty, non-
 finite, fewer than :data:`MIN_POINTS` points) raise a one-line :class:`datasets.io.MeshError`.
 """
 
@@ -18,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from datasets.io import MESH_EXTENSIONS, MeshError, Shape, classify_topology, load_shape
+from datasets.io import MESH_EXTENSIONS, NO_GT, MeshError, Shape, canonical_transform, classify_topology, load_shape
 from datasets.registry import Dataset, DatasetError, existing_dir, register_dataset
 
 #: Extensions of point-cloud files.
@@ -83,8 +86,8 @@ def gt_path(cloud: Path) -> Path | None:
 
 @register_dataset("pointclouds")
 class PointCloudDataset(Dataset):
-    """Point-cloud files with their GT meshes (module docstring); shapes named by file stem, sorted.
-    Only for ``--task reconstruct``."""
+    """Point-cloud files, with or without GT meshes (module docstring); shapes named by file stem,
+    sorted. Only for ``--task reconstruct``."""
 
     name = "pointclouds"
     point_clouds = True
@@ -105,8 +108,10 @@ class PointCloudDataset(Dataset):
         cloud = self._paths[name]
         gt = gt_path(cloud)
         if gt is None:
-            raise MeshError(f"{cloud}: no GT mesh beside it ({cloud.stem}{GT_SUFFIX}.ply or another mesh "
-                            f"extension); a cloud without a GT cannot be scored")
+            raw = read_point_cloud(cloud)
+            transform = canonical_transform(raw)
+            return Shape(name, np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), transform, str(cloud), NO_GT,
+                         {}, transform.apply(raw))
         mesh = load_shape(gt, name=name, kind="closed")
         points = mesh.transform.apply(read_point_cloud(cloud))
         return Shape(name, mesh.vertices, mesh.faces, mesh.transform, str(cloud), classify_topology(mesh.faces),

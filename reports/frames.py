@@ -6,7 +6,8 @@ columns ``cd, nc, f1_<tau>, ecd, ef1``, the flags ``empty_prediction`` and ``ecd
 validity columns and wall-clock seconds in columns ending in ``_s``) plus any extra metric or timing
 columns a preset or a method adds. ``floor`` has one row per shape with the same metric columns:
 the GT against an independent resample of itself (SPEC section 7). Metric values are raw: tables
-apply the preset's multipliers.
+apply the preset's multipliers. Rows with ``scored`` 0 are shapes without a GT (a point cloud given
+alone): their meshes and validity counts are reported, never their (absent) metrics.
 """
 
 from __future__ import annotations
@@ -48,12 +49,32 @@ def check_floor(floor) -> pd.DataFrame | None:
         df["shape"] = df["shape"].astype(str)
     if "status" in df.columns:  # a floor row that could not be computed is not a reference
         df = df[df["status"] == "ok"]
+    df = df[scored(df)]  # a shape without a GT has no floor
     return df if len(df) else None
 
 
 def ok_jobs(results: pd.DataFrame) -> pd.DataFrame:
     """The successful jobs (status 'ok')."""
     return results[results["status"] == "ok"]
+
+
+def scored(frame: pd.DataFrame) -> pd.Series:
+    """Per row: scored against a GT (the ``scored`` column; False only for a shape without a GT, a
+    point cloud given alone; rows written before the column existed were all scored)."""
+    if "scored" not in frame.columns:
+        return pd.Series(True, index=frame.index)
+    return pd.to_numeric(frame["scored"], errors="coerce").fillna(1) > 0.5
+
+
+def without_unscored(results: pd.DataFrame) -> pd.DataFrame:
+    """The rows the metric tables aggregate: every job but the successful ones without a GT (failed
+    jobs stay: they are counted)."""
+    return results[(results["status"] != "ok") | scored(results)]
+
+
+def unscored_jobs(results: pd.DataFrame) -> pd.DataFrame:
+    """The successful jobs of shapes without a GT: reconstructed, not scored."""
+    return results[(results["status"] == "ok") & ~scored(results)]
 
 
 def numeric(frame: pd.DataFrame, column: str) -> pd.Series:

@@ -119,8 +119,9 @@ def _metrics_text(summary: Summary, shape: str, method: str) -> str:
     the prediction's boundary / non-manifold edge counts."""
     ok = ok_jobs(summary.results)
     sel = ok[(ok["shape"] == shape) & (ok["method"] == method)]
-    parts = [f"{m.name} {fmt(numeric(sel, m.column).mean() * m.scale, 2)}"
-             for m in summary.metrics if m.column in plots.PLOTTED]
+    scored = sel[sel.index.isin(summary.scored.index)]
+    parts = [f"{m.name} {fmt(numeric(scored, m.column).mean() * m.scale, 2)}"
+             for m in summary.metrics if m.column in plots.PLOTTED] if len(scored) or not len(sel) else ["not scored (no GT)"]
     if len(sel) and {"boundary_edges", "nonmanifold_edges"} <= set(sel.columns):
         parts.append(topology_text(numeric(sel, "boundary_edges").mean(), numeric(sel, "nonmanifold_edges").mean()))
     return " · ".join(p for p in parts if p)
@@ -306,7 +307,7 @@ def write_html(path: Path, summary: Summary, timing: pd.DataFrame, context: dict
                     + '<details><summary>Median and standard deviation</summary>'
                     + f'<h4>{esc(t["median"].title)}</h4>' + table_html(t["median"])
                     + f'<h4>{esc(t["std"].title)}</h4>' + table_html(t["std"]) + "</details>")
-    per_shape = plot_html(plots.per_shape_plot, results, summary.floor, summary, colors,
+    per_shape = plot_html(plots.per_shape_plot, summary.scored, summary.floor, summary, colors,
                           alt="metric per shape per method")
     shape_tables = "".join(f'<h4>{esc(tb.title)}</h4>' + table_html(tb, "compact")
                            for k, tb in t.items() if k.startswith("shape-"))
@@ -321,7 +322,9 @@ def write_html(path: Path, summary: Summary, timing: pd.DataFrame, context: dict
         ("summary", "Summary", summary_html),
         ("gallery", "Gallery", gallery),
         ("per-shape", "Per shape", per_shape + shape_tables),
-        ("validity", "Mesh validity", table_html(t["validity"])),
+        ("validity", "Mesh validity", table_html(t["validity"])
+         + (f'<h4>{esc(t["unscored"].title)}</h4>' + table_html(t["unscored"], "compact") + notes_html(t["unscored"])
+            if "unscored" in t else "")),
         *([("anytime", "Anytime curves", _anytime_html(checkpoints, summary, colors))] if checkpoints is not None else []),
         ("timing", "Timing", _timing_html(timing, context, results)),
         ("failed", f"Failed jobs ({n_failed})", _failed_html(summary)),

@@ -69,7 +69,7 @@ def per_shape_plot(results: pd.DataFrame, floor: pd.DataFrame | None, summary, c
     if not wanted or not summary.methods:
         return None
     ok = ok_jobs(results)
-    shapes, methods = summary.shapes, summary.methods
+    shapes, methods = [s for s in summary.shapes if s in set(results["shape"])], summary.methods
     labels = [plot_label(m) for m in methods]
     many = len(shapes) > MAX_SHAPE_ROWS
     height = max(0.9 + (0.5 * len(methods) if many else 0.28 * len(shapes) + 0.25), 2.2)

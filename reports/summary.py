@@ -19,7 +19,7 @@ import numpy as np
 import pandas as pd
 
 from benchmark.run.schema import columns as schema_columns
-from reports.frames import as_bool, check_floor, check_results, numeric, ok_jobs, one_line
+from reports.frames import as_bool, check_floor, check_results, numeric, ok_jobs, one_line, unscored_jobs, without_unscored
 from reports.protocol import check_context, headline_metrics, protocol_caption, report_title
 from reports.statistics import AGGREGATION, Statistics, method_statistics, statistic_table, statistics_frame
 from reports.style import method_order
@@ -56,6 +56,7 @@ class Summary:
     tables: dict[str, Table]
     caption: str
     failed: pd.DataFrame
+    scored: pd.DataFrame  # the rows the metric tables and plots use (reports.frames.without_unscored)
 
 
 def shape_order(results: pd.DataFrame, floor: pd.DataFrame | None, preferred) -> list[str]:
@@ -143,6 +144,31 @@ def per_shape_table(results: pd.DataFrame, floor: pd.DataFrame | None, metric, m
     return table
 
 
+def unscored_table(results: pd.DataFrame, methods: list[str], caption: str) -> Table | None:
+    """The successful jobs of shapes without a GT (point clouds given alone): shape, method, seed and
+    the prediction's validity counts; None when there are none."""
+    jobs = unscored_jobs(results)
+    if not len(jobs):
+        return None
+    present = [c for c in schema_columns("validity") if c.name in jobs.columns]
+    headers = ["shape", "method", "seed"] + [c.label for c in present]
+    table = Table("unscored", "Reconstructed without a GT (not scored)", caption, headers,
+                  [tex_escape(h) for h in headers], ["l", "l", "r"] + ["r"] * len(present))
+    rank = {m: i for i, m in enumerate(methods)}
+    jobs = jobs.assign(_rank=jobs["method"].map(rank)).sort_values(["shape", "_rank", "seed"], kind="stable")
+    counts = pd.DataFrame({c.name: numeric(jobs, c.name) for c in present}, index=jobs.index)
+    for i, row in jobs.iterrows():
+        cells = [Cell(str(row["shape"])), Cell(str(row["method"])), Cell(str(row["seed"]))]
+        for c in present:
+            v = counts.at[i, c.name]
+            text = DASH if not np.isfinite(v) else ("yes" if v > 0.5 else "no") if c.label.endswith("%") else f"{v:,.0f}"
+            cells.append(Cell(text))
+        table.add(cells)
+    table.notes.append("These point clouds came without a GT mesh: their reconstructions are in meshes/ and counted "
+                       "here, and no metric table includes them.")
+    return table
+
+
 def failed_jobs(results: pd.DataFrame) -> pd.DataFrame:
     """shape, method, seed, error of every job whose status is not 'ok'."""
     bad = results[results["status"] != "ok"]
@@ -157,7 +183,8 @@ def build_summary(results: pd.DataFrame, floor: pd.DataFrame | None, context: di
     metrics = headline_metrics(context, results.columns)
     methods = method_order(results["method"], context["methods"])
     shapes = shape_order(results, floor, context["shapes"])
-    stats = method_statistics(results, floor, metrics, methods)
+    rows = without_unscored(results)  # shapes without a GT: validity only (their own table)
+    stats = method_statistics(rows, floor, metrics, methods)
     caption = protocol_caption(context)
     stat_caption = f"{caption} {AGGREGATION}"
     tables = {stat: statistic_table(stats, metrics, stat, key=stat, caption=stat_caption)
@@ -165,10 +192,14 @@ def build_summary(results: pd.DataFrame, floor: pd.DataFrame | None, context: di
     tables["validity"] = validity_table(results, floor, methods, caption)
     tables["mean"].notes += [AGGREGATION, FLOOR_NOTE]
     tables["std"].notes.append("Sample standard deviation (ddof = 1) over successful jobs; – with fewer than 2.")
+    scored_shapes = [s for s in shapes if s in set(rows["shape"])]
     for m in metrics:
         if m.column in PER_SHAPE:
-            tables[f"shape-{m.column}"] = per_shape_table(results, floor, m, methods, shapes, caption)
-    return Summary(results, floor, metrics, methods, shapes, stats, tables, caption, failed_jobs(results))
+            tables[f"shape-{m.column}"] = per_shape_table(rows, floor, m, methods, scored_shapes, caption)
+    unscored = unscored_table(results, methods, caption)
+    if unscored is not None:
+        tables["unscored"] = unscored
+    return Summary(results, floor, metrics, methods, shapes, stats, tables, caption, failed_jobs(results), rows)
 
 
 def summary_markdown(summary: Summary, title: str) -> str:

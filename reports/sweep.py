@@ -49,7 +49,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from benchmark.run.schema import columns as schema_columns
-from reports.frames import as_bool, check_results, numeric
+from reports.frames import as_bool, check_results, numeric, without_unscored
 from reports.html import esc, notes_html, plot_html, table_html
 from reports.plots import STYLE, _svg, plot_label
 from reports.protocol import check_context, headline_metrics, protocol_caption, report_title, sweep_spec
@@ -184,6 +184,7 @@ def sweep_stats(jobs: pd.DataFrame, by: list[str], metrics: list) -> tuple[pd.Da
     ran, and the headline metrics' ci_low, ci_high (bootstrap interval of the mean over shapes);
     columns (statistic, quantity). per_shape: {metric column: groups x shapes}, the mean over each
     shape's successful seeds (NaN skipped)."""
+    jobs = without_unscored(jobs)  # a shape without a GT has no metrics to sweep
     ok = jobs["status"] == "ok"
     fit_s = numeric(jobs, FIT)
     fitted = ok & fitted_jobs(jobs) & fit_s.notna()

@@ -319,3 +319,18 @@ def test_a_seed_that_is_neither_a_non_negative_int_nor_a_seed_sequence_is_refuse
     v, f = box(2.0)
     with pytest.raises(ValueError, match="^seed must be a non-negative int or a numpy.random.SeedSequence, got "):
         M.evaluate(v, f, v, f, n_points=100, seed=seed)
+
+
+def test_a_prediction_without_a_gt_gets_its_validity_only():
+    """A tetrahedron: 4 faces, closed (0 boundary, 0 non-manifold edges, 1 component); no metric key,
+    scored False; a mesh of points on a line is empty; evaluate() says scored True."""
+    V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float)
+    F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    r = M.evaluate_without_gt(V, F)
+    assert r["scored"] is False and r["empty_prediction"] is False and r["dropped_faces"] == 0
+    assert (r["n_faces"], r["boundary_edges"], r["nonmanifold_edges"], r["components"], r["watertight"]) == (4, 0, 0, 1, True)
+    assert not {"cd", "nc", "ecd", "ef1", "f1_005"} & set(r)
+    line = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0]], dtype=float)
+    assert M.evaluate_without_gt(line, [[0, 1, 2]])["empty_prediction"] is True
+    assert M.evaluate_without_gt(np.zeros((0, 3)), np.zeros((0, 3)))["n_faces"] == 0
+    assert M.evaluate(V, F, V, F, n_points=2000)["scored"] is True

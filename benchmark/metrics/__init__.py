@@ -30,7 +30,8 @@ or a point relative to their own size) never raise: their distance metrics are N
 and ``empty_prediction`` is set. Any scale works (1e-300 to 1e300: exact power-of-two rescales,
 :mod:`benchmark.surface`). Mesh validity (vertex/face counts, boundary and
 non-manifold edges, components, watertightness) is counted on the prediction's faces *as given*,
-vertices not merged (:func:`mesh_validity`).
+vertices not merged (:func:`mesh_validity`). A prediction without a GT (a point cloud reconstructed
+with no mesh beside it) gets only those counts, ``scored`` False (:func:`evaluate_without_gt`).
 
 Modules: :mod:`~benchmark.metrics.presets` (protocols as data), :mod:`~benchmark.metrics.distances`
 (CD, NC, F1, ECD, EF1 on point sets), :mod:`~benchmark.metrics.edges` (sharp-edge points),
@@ -41,7 +42,7 @@ in, one result row out), ``__main__`` (the command line: ``python -m benchmark.m
 
 from benchmark.metrics.distances import edge_metrics, nearest_distances, spatial_order, surface_metrics
 from benchmark.metrics.edges import MAX_EDGE_PAIRS, EdgeSearchTooDense, sharp_edge_points
-from benchmark.metrics.evaluate import evaluate, floor
+from benchmark.metrics.evaluate import evaluate, evaluate_without_gt, floor
 from benchmark.metrics.presets import PRESETS, HeadlineMetric, MetricPreset, f1_column
 from benchmark.metrics.validity import mesh_validity
 
@@ -51,6 +52,7 @@ __all__ = [
     "f1_column",
     "PRESETS",
     "evaluate",
+    "evaluate_without_gt",
     "floor",
     "sharp_edge_points",
     "EdgeSearchTooDense",

@@ -114,7 +114,8 @@ def evaluate(
         out-of-range indices or non-finite vertices, excluded from sampling), the validity columns
         of the prediction as given (:func:`mesh_validity`), the protocol: ``preset, n_points,
         seed`` (the int, or the SeedSequence's state as a string), ``gt_diagonal, edge_radius,
-        ef1_threshold`` (absolute, in the frame), and ``seconds``: ``<stage>_s`` wall-clock seconds
+        ef1_threshold`` (absolute, in the frame), ``scored`` (True: scored against a GT; see
+        :func:`evaluate_without_gt`), and ``seconds``: ``<stage>_s`` wall-clock seconds
         per stage and ``total_s``.
 
     Raises
@@ -209,8 +210,24 @@ def evaluate(
         dropped_faces=int(len(pred_faces) - len(usable)),
     )
     result.update(validity)
-    result.update(gt_diagonal=gt_diagonal, edge_radius=radius, ef1_threshold=tau_e)
+    result.update(gt_diagonal=gt_diagonal, edge_radius=radius, ef1_threshold=tau_e, scored=True)
     result["seconds"] = {**timer.seconds, "total_s": time.perf_counter() - t_start}
+    return result
+
+
+def evaluate_without_gt(pred_vertices, pred_faces) -> dict:
+    """What can be said of a prediction that has no GT (a point cloud reconstructed without a mesh
+    beside it): ``scored`` False, ``empty_prediction`` (the rule of :func:`evaluate`),
+    ``dropped_faces`` and the validity columns of the prediction as given; no distance or edge
+    metric (they need a GT). Never raises."""
+    t_start = time.perf_counter()
+    pred_vertices = np.asarray(pred_vertices, dtype=np.float64).reshape(-1, 3)
+    pred_faces = np.asarray(pred_faces)
+    pred_faces = pred_faces.astype(np.int64).reshape(-1, 3) if pred_faces.size else np.zeros((0, 3), dtype=np.int64)
+    usable = _usable_faces(pred_vertices, pred_faces)
+    result = {"scored": False, "empty_prediction": not relative_area(pred_vertices, usable) >= MIN_RELATIVE_AREA,
+              "dropped_faces": int(len(pred_faces) - len(usable)), **mesh_validity(pred_vertices, pred_faces)}
+    result["seconds"] = {"total_s": time.perf_counter() - t_start}
     return result
 
 

@@ -43,7 +43,9 @@ class Display:
             return
         line = f"[{self.count}/{self.total}] {result.status:6s} {result.spec.label}"
         m = result.metrics
-        if result.ok and m:
+        if result.ok and m.get("scored") is False:
+            line += " no GT: no floor" if result.kind == "floor" else f" not scored (no GT) faces={m.get('n_faces', 0):,}"
+        elif result.ok and m:
             parts = [f"{k}={m[k]:.4g}" for k in ("cd", "f1_005", "ecd", "ef1") if isinstance(m.get(k), (int, float))]
             line += " " + " ".join(parts)
         line += f" {result.timings.get('total_s', 0.0):.1f}s"

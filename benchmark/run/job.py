@@ -160,13 +160,18 @@ def _run(spec, progress: Callable | None, body: Callable) -> TaskResult:
 
 
 def _score(score: Callable, spec, shape, pred_V, pred_F, result: TaskResult, report: _Progress) -> None:
-    """``score`` (metrics.evaluate or metrics.floor) against the GT with the job's metric stream."""
+    """``score`` (metrics.evaluate or metrics.floor) against the GT with the job's metric stream; a
+    shape without a GT gets the prediction's validity counts only (``metrics.evaluate_without_gt``)."""
+    from benchmark.metrics import evaluate_without_gt
     from benchmark.seeding import job_streams
 
     report("scoring")
     with stage("metrics"):
-        scores = score(shape.vertices, shape.faces, pred_V, pred_F, preset=spec.metric_preset,
-                       seed=job_streams(shape.content_hash, spec.seed).metrics, n_points=spec.eval_points)
+        if shape.has_gt:
+            scores = score(shape.vertices, shape.faces, pred_V, pred_F, preset=spec.metric_preset,
+                           seed=job_streams(shape.content_hash, spec.seed).metrics, n_points=spec.eval_points)
+        else:
+            scores = evaluate_without_gt(pred_V, pred_F)
     scores.pop("seconds", None)
     result.metrics = scores
     report("saving")
@@ -302,6 +307,9 @@ def _floor_body(spec: FloorSpec, shape, device, timer: StageTimer, result: TaskR
 
     result.shape_info = {"source": str(shape.source), "gt_vertices": int(len(shape.vertices)),
                          "gt_faces": int(len(shape.faces))}
+    if not shape.has_gt:  # a point cloud alone: no floor, no gt.ply
+        result.metrics = {"scored": False}
+        return
     _score(lambda V, F, _V, _F, **kw: metrics.floor(V, F, **kw), spec, shape, shape.vertices, shape.faces,
            result, report)
 

@@ -59,6 +59,7 @@ JOB_COLUMNS: tuple[Column, ...] = (
     _c("watertight", "INTEGER", "validity", "watertight %"),
     _c("empty_prediction", "INTEGER", "metric"),
     _c("ecd_flag", "INTEGER", "metric"),
+    _c("scored", "INTEGER", "metric"),
     _c("fit_s", "REAL", "timing", csv=True),
     _c("query_s", "REAL", "timing", csv=True),
     _c("extract_s", "REAL", "timing", csv=True),
