@@ -259,7 +259,7 @@ BACKBONES = ("mlp", "grid")
 
 class EndpointSplit(NamedTuple):
     """A segment network (input ``[u, v]``, 6 values) cut after its first linear layer, whose
-    pre-activation is a sum of one term per endpoint (see :func:`endpoint_split`).
+    pre-activation is a sum of one term per endpoint (see :func:`endpoint_split`); for inference.
 
     ``terms(points) -> (A, B)``: (P, W) each, for points (P, 3); ``tail(A[i] + B[j])`` is the
     network's output for the segment (points[i], points[j]).
@@ -272,39 +272,45 @@ class EndpointSplit(NamedTuple):
 def endpoint_split(model: nn.Module) -> EndpointSplit | None:
     """The network of a segment field split by endpoint, so that points shared by many segments
     (the grid points of the edges E-DC queries: each is an endpoint of up to 6 edges) are encoded
-    once; None for any model this module does not build, or a points network.
+    once; None for any model this module does not build, or a points network. For inference: the
+    terms do not carry gradients to the weights.
 
     Both backbones' segment networks start with a linear layer over per-endpoint blocks:
 
     * :class:`MLP` (in_dim 6): ``W [u, v] + b = (W_u u + b) + W_v v``.
     * :class:`GridNetwork` (k = 2): ``W [c(u), c(v), (v - u) / S] + b`` with ``c(p) = [enc(p), p]``
-      equals ``(W_u c(u) - W_o u / S + b) + (W_v c(v) + W_o v / S)``, the offset's block ``W_o``
-      being linear too.
+      equals ``(W_u c(u) - W_o u / S + b) + (W_v c(v) + W_o v / S)``: the offset's block ``W_o``
+      folds into the blocks of the raw coordinates.
 
-    So ``A(p)`` = the first term at ``p``, ``B(p)`` = the second, and ``tail`` is every layer after
-    the first. The same function as the network's forward, up to float rounding (the sums are
-    ordered differently).
+    So ``A(p)`` = the first term at ``p``, ``B(p)`` = the second (both from one product of the code
+    with the two blocks side by side), and ``tail`` is every layer after the first. The same
+    function as the network's forward, up to float rounding (the sums are ordered differently).
     """
     if isinstance(model, MLP) and model.config["in_dim"] == 6:
-        first, tail = model.layers[0], model.layers[1:]
-
-        def terms(points):
-            W = first.weight
-            return points @ W[:, :3].T + first.bias, points @ W[:, 3:].T
-
-        return EndpointSplit(terms, tail)
-    if isinstance(model, GridNetwork) and model.k == 2:
-        first, tail = model.head.layers[0], model.head.layers[1:]
+        first, tail, encode = model.layers[0], model.layers[1:], None
+        with torch.no_grad():
+            blocks = [first.weight[:, :3], first.weight[:, 3:]]
+    elif isinstance(model, GridNetwork) and model.k == 2:
+        first, tail, encode = model.head.layers[0], model.head.layers[1:], model.encoder
         d = model.encoder.out_dim + 3
-
-        def terms(points):
+        with torch.no_grad():
             W = first.weight
-            codes = torch.cat([model.encoder(points), points], dim=1)
-            offset = points @ (W[:, 2 * d:] / SEGMENT_SCALE).T
-            return codes @ W[:, :d].T - offset + first.bias, codes @ W[:, d:2 * d].T + offset
+            offset = W[:, 2 * d:] / SEGMENT_SCALE  # rows of the raw coordinates get -/+ the offset's block
+            blocks = [torch.cat([W[:, :d - 3], W[:, d - 3:d] - offset], dim=1),
+                      torch.cat([W[:, d:2 * d - 3], W[:, 2 * d - 3:2 * d] + offset], dim=1)]
+    else:
+        return None
+    with torch.no_grad():
+        weight = torch.cat(blocks, dim=0).T.contiguous()  # (code size, 2 W): A's block, then B's
+        bias = torch.cat([first.bias, torch.zeros_like(first.bias)])
+    width = first.out_features
 
-        return EndpointSplit(terms, tail)
-    return None
+    def terms(points):
+        codes = points if encode is None else torch.cat([encode(points), points], dim=1)
+        both = torch.addmm(bias, codes, weight)
+        return both[:, :width], both[:, width:]
+
+    return EndpointSplit(terms, tail)
 
 
 def make_network(in_dim: int, out_dim: int, depth: int = 9, width: int = 512, beta: float = 100.0,
