@@ -9,8 +9,10 @@ runs are seeded the same way but may differ in the last bits between runs.
 
 from __future__ import annotations
 
+import contextlib
 import os
 from functools import lru_cache
+from typing import Iterator
 
 import torch
 
@@ -66,3 +68,31 @@ def synchronize(device: torch.device | str | None = None) -> None:
     device = get_device(device)
     if device.type == "cuda":
         torch.cuda.synchronize(device)
+
+
+_flush_depth = 0
+
+
+@contextlib.contextmanager
+def flush_denormals() -> Iterator[None]:
+    """Inside the block, CPU float operations flush denormal numbers to zero (the FTZ/DAZ modes of
+    ``torch.set_flush_denormal``); on leaving the outermost block torch's default (off) is back.
+
+    Why: Softplus(beta = 100) computes ``exp(beta x)``, which is denormal wherever ``beta x < -87``,
+    and x86 cores take a slow path on every denormal operand. A fitted head has many such
+    pre-activations (a SALS head more than an SDF one), so on the CPU this costs time and nothing
+    else: the values flushed lie below float32's smallest normal number (1.2e-38). Measured on one
+    core: a 1,000-step SALS grid fit 33.3 -> 28.5 s with bit-identical weights and losses; the SALS
+    grid query of a fitted ABC part 5.1 -> 4.0 s with the same intersected edges and hit points, the
+    SDF query unchanged. No effect on CUDA tensors. Nested blocks are counted, not restored in turn.
+    """
+    global _flush_depth
+    if _flush_depth == 0:
+        torch.set_flush_denormal(True)
+    _flush_depth += 1
+    try:
+        yield
+    finally:
+        _flush_depth -= 1
+        if _flush_depth == 0:
+            torch.set_flush_denormal(False)

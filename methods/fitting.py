@@ -33,7 +33,7 @@ import numpy as np
 import torch
 
 from benchmark.registry import Registry
-from methods.device import get_device, seeded_generator, synchronize
+from methods.device import flush_denormals, get_device, seeded_generator, synchronize
 from methods.network import BACKBONES, GridNetwork, make_network
 from methods.params import Param, with_overrides
 
@@ -307,31 +307,32 @@ def fit(method, samples, targets: dict, budget: str | Budget, seed: int = 0, dev
     paused = 0.0
     synchronize(device)
     t0 = time.perf_counter()
-    for step in range(T):
-        for group in optimizer.param_groups:
-            group["lr"] = learning_rate(step, T, group["lr_start"], group["lr_end"], warmup)
-        idx = torch.randint(0, M, (B,), generator=generator, device=device)
-        xb = x_all[idx]
-        if needs_grad:
-            xb.requires_grad_(True)
-        tb = {k: v[idx] for k, v in t_all.items()}
-        optimizer.zero_grad(set_to_none=True)
-        loss = method.loss(model(xb), tb, inputs=xb, model=model)
-        loss.backward()
-        optimizer.step()
-        losses[step] = loss.detach()
-        if (step + 1) % every == 0 or step + 1 == T:
-            last = checked_loss(losses, step + 1, every, lambda i: f"iteration {i} of {T} (method '{method.name}', "
-                                                                   f"budget '{budget.name}', seed {seed})")
-            if progress is not None:
-                progress(step=step + 1, loss=last)
-        if step + 1 in pause_at:
-            synchronize(device)
-            t_pause = time.perf_counter()
-            model.eval()
-            on_checkpoint(step + 1, t_pause - t0 - paused, model)
-            model.train()
-            paused += time.perf_counter() - t_pause
+    with flush_denormals():  # Softplus underflow: same numbers, no denormal slow path
+        for step in range(T):
+            for group in optimizer.param_groups:
+                group["lr"] = learning_rate(step, T, group["lr_start"], group["lr_end"], warmup)
+            idx = torch.randint(0, M, (B,), generator=generator, device=device)
+            xb = x_all[idx]
+            if needs_grad:
+                xb.requires_grad_(True)
+            tb = {k: v[idx] for k, v in t_all.items()}
+            optimizer.zero_grad(set_to_none=True)
+            loss = method.loss(model(xb), tb, inputs=xb, model=model)
+            loss.backward()
+            optimizer.step()
+            losses[step] = loss.detach()
+            if (step + 1) % every == 0 or step + 1 == T:
+                last = checked_loss(losses, step + 1, every, lambda i: f"iteration {i} of {T} (method '{method.name}', "
+                                                                       f"budget '{budget.name}', seed {seed})")
+                if progress is not None:
+                    progress(step=step + 1, loss=last)
+            if step + 1 in pause_at:
+                synchronize(device)
+                t_pause = time.perf_counter()
+                model.eval()
+                on_checkpoint(step + 1, t_pause - t0 - paused, model)
+                model.train()
+                paused += time.perf_counter() - t_pause
     synchronize(device)
     seconds = time.perf_counter() - t0 - paused
     model.eval()

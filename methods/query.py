@@ -43,7 +43,7 @@ import torch
 from scipy.ndimage import binary_dilation
 
 from benchmark.grid import LOWER, edge_endpoint_values, edge_endpoints, edge_index_to_ijk_axis, num_edges, spacing
-from methods.device import get_device, synchronize
+from methods.device import flush_denormals, get_device, synchronize
 from methods.network import endpoint_split
 
 #: Rows per forward pass (ENVIRONMENT.md: 16k-65k chunks are much faster than 1M on the CPU).
@@ -74,7 +74,7 @@ def evaluate(model, inputs: np.ndarray, device=None, chunk: int = DEFAULT_CHUNK)
     device = _model_device(model, device)
     inputs = np.ascontiguousarray(inputs, dtype=np.float32)
     outs = []
-    with torch.inference_mode():
+    with torch.inference_mode(), flush_denormals():
         for i in range(0, len(inputs), chunk):
             x = torch.from_numpy(inputs[i:i + chunk]).to(device)
             outs.append(model(x).float().cpu().numpy())
@@ -91,7 +91,7 @@ def evaluate_with_input_grad(model, inputs: np.ndarray, output_index: int = 0, d
     device = _model_device(model, device)
     inputs = np.ascontiguousarray(inputs, dtype=np.float32)
     outs, grads = [], []
-    with torch.enable_grad():
+    with torch.enable_grad(), flush_denormals():
         for i in range(0, len(inputs), chunk):
             x = torch.from_numpy(inputs[i:i + chunk]).to(device).requires_grad_(True)
             y = model(x)
@@ -131,7 +131,7 @@ def evaluate_point_pairs(model, points: np.ndarray, iu: np.ndarray, iv: np.ndarr
         return evaluate(model, np.concatenate([points[iu], points[iv]], axis=1), device, chunk)
     device = _model_device(model, device)
     outs = []
-    with torch.inference_mode():
+    with torch.inference_mode(), flush_denormals():
         P = torch.from_numpy(points).to(device)
         terms = [split.terms(P[i:i + chunk]) for i in range(0, len(P), chunk)]
         A = torch.cat([a for a, _ in terms])
