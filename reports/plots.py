@@ -32,6 +32,9 @@ STYLE = {
 STAGE_COLORS = {"load_s": "#d9d9d9", "sample_s": "#8dd3c7", "label_s": "#80b1d3", "fit_s": "#3b6fb6",
                 "query_s": "#fdb462", "extract_s": "#fb8072", "metrics_s": "#b3de69"}
 SPARE_STAGE_COLORS = ("#bebada", "#fccde5", "#ccebc5", "#ffed6f", "#bc80bd")
+#: Legend entries per row of the timing plot (a reconstruct job has up to ten stages: one row of
+#: ten is wider than the figure).
+LEGEND_COLUMNS = 5
 #: Metrics plotted (when the preset reports them).
 PLOTTED = ("cd", "ecd", "ef1")
 #: Above this many shapes the per-shape plot shows box plots per method instead of a row per shape.
@@ -133,7 +136,9 @@ def timing_plot(timing: pd.DataFrame) -> bytes | None:
     total = timing[timing["level"] == "total"].set_index("method")["mean_s"].reindex(methods)
     spare = iter(SPARE_STAGE_COLORS * 4)
     with matplotlib.rc_context(STYLE):
-        fig = Figure(figsize=(8.5, 0.9 + 0.45 * len(methods)))
+        ncol = min(len(means.columns), LEGEND_COLUMNS)
+        legend_rows = -(-len(means.columns) // ncol)
+        fig = Figure(figsize=(8.5, 0.65 + 0.25 * legend_rows + 0.45 * len(methods)))
         ax = fig.subplots()
         y = np.arange(len(methods))
         left = np.zeros(len(methods))
@@ -149,7 +154,7 @@ def timing_plot(timing: pd.DataFrame) -> bytes | None:
         ax.invert_yaxis()
         ax.set_xlabel("seconds per job (mean)")
         ax.grid(axis="y", visible=False)
-        ax.legend(ncol=len(means.columns), frameon=False, loc="lower left", bbox_to_anchor=(0.0, 1.0), fontsize=8,
+        ax.legend(ncol=ncol, frameon=False, loc="lower left", bbox_to_anchor=(0.0, 1.0), fontsize=8,
                   handlelength=1.2, columnspacing=1.0)
         fig.tight_layout()
         return _svg(fig)

@@ -1,8 +1,9 @@
 """Timing tables: wall-clock seconds per job and stage, per method (timing.csv, timing.md).
 
-A timing column is any result column ending in ``_s``. Pipeline stages (:data:`STAGE_LABELS`) are
-summed into 'sum of stages'; a column ``<stage>_<step>_s`` of a stage present (e.g.
-``extract_qef_s``) is a sub-step, listed under its stage and not added again; other ``_s`` columns
+A timing column is any result column ending in ``_s``. Pipeline stages (:data:`STAGE_LABELS`, of
+both tasks) are summed into 'sum of stages'; a column ``<stage>_<step>_s`` of a stage present (e.g.
+``extract_qef_s``, ``reconstruct_field_knn_s``) is a sub-step, listed under its stage and not added
+again; other ``_s`` columns
 are stages of their own, placed before scoring; ``total_s`` is the job's wall time. Statistics are
 over a method's successful jobs (all its jobs when none succeeded).
 """
@@ -21,9 +22,11 @@ from reports.table import DASH, Cell, Table, fmt, md_escape, table_markdown_sect
 
 STAGE_LABELS = {
     "load_s": "loading",
+    "network_s": "network (train or load)",
     "sample_s": "sampling",
     "label_s": "labelling",
     "fit_s": "fitting",
+    "reconstruct_s": "reconstruction",
     "query_s": "field queries",
     "extract_s": "extraction",
     "metrics_s": "metrics",

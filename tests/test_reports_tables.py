@@ -250,6 +250,23 @@ def test_timing_frame_orders_unknown_stages_before_metrics():
                       "sum_of_stages", "total_s"]
 
 
+def test_timing_frame_reconstruct_steps_are_not_summed_twice():
+    results, _ = make_results()
+    results = results.drop(columns=["label_s", "fit_s", "query_s", "extract_s", "extract_edc_points_s",
+                                    "extract_qef_s", "extract_faces_s"]).assign(
+        network_s=0.5, sample_s=0.25, reconstruct_s=10.0, reconstruct_band_s=2.0, reconstruct_field_s=7.0,
+        reconstruct_field_knn_s=1.0, metrics_s=3.0)
+    t = timing_frame(results, CONTEXT)
+    sals = t[t["method"] == "sals"].set_index("stage")
+    assert sals.index.tolist() == ["network_s", "sample_s", "reconstruct_s", "reconstruct_band_s",
+                                   "reconstruct_field_s", "reconstruct_field_knn_s", "metrics_s",
+                                   "sum_of_stages", "total_s"]
+    assert sals.loc[sals["level"] == "stage"].index.tolist() == ["network_s", "sample_s", "reconstruct_s",
+                                                                  "metrics_s"]
+    assert sals.at["sum_of_stages", "mean_s"] == pytest.approx(0.5 + 0.25 + 10.0 + 3.0)  # steps not added
+    assert sals.at["reconstruct_field_knn_s", "label"] == "reconstruction: field knn"
+
+
 def test_compare_runs_side_by_side(tmp_path):
     results, floor = make_results()
     better = results.assign(cd=results["cd"] / 2)
