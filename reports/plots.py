@@ -10,6 +10,7 @@ missing glyphs. The tables of the report show the names in full.
 from __future__ import annotations
 
 import io
+import math
 from functools import lru_cache
 
 import matplotlib
@@ -29,8 +30,9 @@ STYLE = {
     "axes.axisbelow": True, "axes.edgecolor": "#9ca3af", "axes.titleweight": "bold", "axes.titlesize": 10,
 }
 #: Stage colours, fixed per stage so every run's timing bars read alike.
-STAGE_COLORS = {"load_s": "#d9d9d9", "sample_s": "#8dd3c7", "label_s": "#80b1d3", "fit_s": "#3b6fb6",
-                "query_s": "#fdb462", "extract_s": "#fb8072", "metrics_s": "#b3de69"}
+STAGE_COLORS = {"load_s": "#d9d9d9", "network_s": "#6a51a3", "sample_s": "#8dd3c7", "label_s": "#80b1d3",
+                "fit_s": "#3b6fb6", "reconstruct_s": "#e6850e", "query_s": "#fdb462", "extract_s": "#fb8072",
+                "metrics_s": "#b3de69"}
 SPARE_STAGE_COLORS = ("#bebada", "#fccde5", "#ccebc5", "#ffed6f", "#bc80bd")
 #: Legend entries per row of the timing plot (a reconstruct job has up to ten stages: one row of
 #: ten is wider than the figure).
@@ -137,7 +139,7 @@ def timing_plot(timing: pd.DataFrame) -> bytes | None:
     spare = iter(SPARE_STAGE_COLORS * 4)
     with matplotlib.rc_context(STYLE):
         ncol = min(len(means.columns), LEGEND_COLUMNS)
-        legend_rows = -(-len(means.columns) // ncol)
+        legend_rows = math.ceil(len(means.columns) / ncol)
         fig = Figure(figsize=(8.5, 0.65 + 0.25 * legend_rows + 0.45 * len(methods)))
         ax = fig.subplots()
         y = np.arange(len(methods))

@@ -3,9 +3,8 @@
 A timing column is any result column ending in ``_s``. Pipeline stages (:data:`STAGE_LABELS`, of
 both tasks) are summed into 'sum of stages'; a column ``<stage>_<step>_s`` of a stage present (e.g.
 ``extract_qef_s``, ``reconstruct_field_knn_s``) is a sub-step, listed under its stage and not added
-again; other ``_s`` columns
-are stages of their own, placed before scoring; ``total_s`` is the job's wall time. Statistics are
-over a method's successful jobs (all its jobs when none succeeded).
+again; other ``_s`` columns are stages of their own, placed before scoring; ``total_s`` is the job's
+wall time. Statistics are over a method's successful jobs (all its jobs when none succeeded).
 """
 
 from __future__ import annotations
