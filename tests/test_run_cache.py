@@ -26,6 +26,15 @@ def test_code_digest_follows_imports_and_refuses_missing_modules(tmp_path, monke
     (pkg / "zz_probe_b.py").write_text("X = 2\n")  # a module imported lazily, inside a function
     code_digest.cache_clear()
     assert code_digest("benchmark.zz_probe_a") != first
+    (pkg / "zz_probe_b.py").write_text('"""A docstring."""\n# a comment\nX = (\n    2)  # same code\n')
+    code_digest.cache_clear()
+    second = code_digest("benchmark.zz_probe_a")
+    (pkg / "zz_probe_b.py").write_text("X = 2\n")
+    code_digest.cache_clear()
+    assert code_digest("benchmark.zz_probe_a") == second  # comments, docstrings, layout: same digest
+    (pkg / "zz_probe_a.py").write_text('def f():\n    "Doc."\n    from benchmark import zz_probe_b\n')
+    code_digest.cache_clear()
+    assert code_digest("benchmark.zz_probe_a") == second
     (pkg / "zz_probe_b.py").unlink()  # renamed away: never silently counted as empty
     code_digest.cache_clear()
     with pytest.raises(ModuleNotFoundError, match="imports 'benchmark.zz_probe_b', which does not exist"):
@@ -47,6 +56,7 @@ def test_damaged_mesh_entry_is_recomputed_and_counted(tmp_path):
     assert caches.load_mesh("m", "k") is None and len(stats.rejected) == 1 and "checksum mismatch" in stats.rejected[0]
 
 
+@pytest.mark.slow
 def test_damaged_weights_are_refitted_not_used(fakes, tmp_path):
     """Issue 11.4: flipping 64 bytes of a cached .pt used to load silently (SDF CD 0.127 -> 0.529)."""
     cache = tmp_path / "cache"

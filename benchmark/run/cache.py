@@ -20,7 +20,8 @@ and load the saved weights. With the caches off every job fits for itself.
 
 :func:`code_digest` follows the imports it finds in the source (``import``/``from`` statements,
 also inside functions) through the project's packages (benchmark, methods, datasets) and hashes
-every module file reached. A module that cannot be found raises instead of counting as empty, so a
+what every module reached computes: its syntax tree without docstrings, so comments, docstrings
+and layout do not invalidate a cache, while any change of code does. A module that cannot be found raises instead of counting as empty, so a
 renamed module never silently stops invalidating the caches that depend on it.
 """
 
@@ -112,10 +113,23 @@ def _imports(name: str, path: Path) -> set[str]:
     return found
 
 
+def _computing_source(path: Path) -> bytes:
+    """The module's syntax tree without docstrings, dumped: equal for two files whose code is equal
+    whatever their comments, docstrings and formatting."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
+            body = node.body
+            if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant) \
+                    and isinstance(body[0].value.value, str):
+                node.body = body[1:] or [ast.Pass()]
+    return ast.dump(tree, annotate_fields=False, include_attributes=False).encode()
+
+
 @lru_cache(maxsize=None)
 def code_digest(*modules: str) -> str:
-    """SHA-256 (16 hex) over the source files of ``modules`` and the project modules they import,
-    transitively (module docstring)."""
+    """SHA-256 (16 hex) over the code of ``modules`` and of the project modules they import,
+    transitively (module docstring): comments and docstrings do not count."""
     importlib.invalidate_caches()
     seen: dict[str, Path] = {}
     todo = list(modules)
@@ -131,8 +145,19 @@ def code_digest(*modules: str) -> str:
             todo.append(parent)
     h = hashlib.sha256()
     for name in sorted(seen):
-        h.update(name.encode() + b"\0" + seen[name].read_bytes() + b"\0")
+        h.update(name.encode() + b"\0" + _computing_source(seen[name]) + b"\0")
     return h.hexdigest()[:16]
+
+
+def task_code_digest(spec) -> str:
+    """The code that computes a task's result: the job function and everything it imports, and,
+    for a job, its method's module (a plugin's too)."""
+    modules = ["benchmark.run.job"]
+    if spec.kind == "job":
+        from methods.base import METHODS
+
+        modules.append(METHODS.get(spec.method).__module__)
+    return code_digest(*modules)
 
 
 def fit_code_digest(method) -> str:
