@@ -133,6 +133,7 @@ def test_help_and_bad_flag_through_the_script():
 # ---------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_oracle_run_writes_the_contract(fakes, tmp_path):
     out, cache = tmp_path / "run", tmp_path / "cache"
     assert main(oracle_args(out, cache)) == 0
@@ -186,6 +187,7 @@ def test_failing_job_is_recorded_the_run_goes_on_and_the_exit_says_so(fakes, tmp
     assert "second line" in tb and "Traceback" in tb
 
 
+@pytest.mark.slow
 def test_every_job_failing_is_a_nonzero_exit_through_the_script(tmp_path):
     proc = subprocess.run([sys.executable, "run_benchmark.py", *oracle_args(tmp_path / "run", tmp_path / "c"),
                            "--methods", "test_broken"], cwd=REPO, capture_output=True, text=True, timeout=300)
@@ -198,6 +200,7 @@ def test_every_job_failing_is_a_nonzero_exit_through_the_script(tmp_path):
 # ---------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_rerun_skips_finished_jobs_and_retries_failed(fakes, tmp_path):
     out, cache = tmp_path / "run", tmp_path / "cache"
     assert main(oracle_args(out, cache, "--no-cache")) == 0
@@ -213,6 +216,7 @@ def test_rerun_skips_finished_jobs_and_retries_failed(fakes, tmp_path):
     pd.testing.assert_series_equal(after.cd, before.cd)               # and reproduced its numbers exactly
 
 
+@pytest.mark.slow
 def test_second_resume_keeps_the_saved_configuration(fakes, tmp_path):
     """Issue 11.1: after one --resume, the next one used to run the defaults (builtin, neural, all methods)."""
     out, cache = tmp_path / "run", tmp_path / "cache"
@@ -241,6 +245,7 @@ def test_a_different_protocol_is_refused_naming_the_settings(fakes, tmp_path, ca
         assert {r[0] for r in con.execute("SELECT DISTINCT grid FROM jobs")} == {32}
 
 
+@pytest.mark.slow
 def test_adding_a_method_to_a_run_keeps_its_protocol(fakes, tmp_path):
     out, cache = tmp_path / "run", tmp_path / "cache"
     args = oracle_args(out, cache)
@@ -268,6 +273,7 @@ def test_a_locked_run_directory_is_refused_naming_its_holder(fakes, tmp_path, ca
     assert main(oracle_args(out, tmp_path / "cache")) == 0  # released: the next run goes ahead
 
 
+@pytest.mark.slow
 def test_concurrent_runs_into_one_directory_do_not_mix(tmp_path):
     out = tmp_path / "run"
     cmd = [sys.executable, "run_benchmark.py", *oracle_args(out, tmp_path / "c")]
@@ -286,6 +292,7 @@ def test_concurrent_runs_into_one_directory_do_not_mix(tmp_path):
 # ---------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_mesh_cache_is_reused_across_runs(fakes, tmp_path):
     cache = tmp_path / "cache"
     assert main(oracle_args(tmp_path / "a", cache)) == 0
@@ -304,6 +311,7 @@ def test_no_cache_writes_no_cache_file(fakes, tmp_path, monkeypatch):
     assert not (tmp_path / "cache").exists() and not (tmp_path / "env-cache").exists()
 
 
+@pytest.mark.slow
 def test_a_run_is_reproduced_from_its_own_config(fakes, tmp_path):
     out, cache = tmp_path / "run", tmp_path / "cache"
     assert main(oracle_args(out, cache, "--seed", "3")) == 0
@@ -325,6 +333,7 @@ def test_config_files_with_unknown_settings_are_refused(fakes, tmp_path, capsys)
     assert "setting 'grid' must be int, got '32'" in one_error_line(capsys)
 
 
+@pytest.mark.slow
 def test_report_subcommand_regenerates_results(fakes, tmp_path):
     out, cache = tmp_path / "run", tmp_path / "cache"
     assert main(oracle_args(out, cache)) == 0
@@ -354,6 +363,7 @@ def test_neural_run_fits_caches_weights_and_records_nan_loss(fakes, tmp_path):
     assert np.isnan(b.loc["test_sdf", "fit_s"])  # no fitting happened in this run
 
 
+@pytest.mark.slow
 def test_registered_methods_oracle_end_to_end(tmp_path):
     from methods.base import available_methods
 
@@ -367,6 +377,7 @@ def test_registered_methods_oracle_end_to_end(tmp_path):
     assert (df.cd < 2 / 31).all()
 
 
+@pytest.mark.slow
 def test_checkpoints_give_one_row_each_with_increasing_step_and_an_anytime_plot(fakes, tmp_path):
     out = tmp_path / "run"
     args = ["--methods", "test_sdf", "--mode", "neural", "--budget", "tiny", "--grid", "24", "--eval-points", "5000",
@@ -411,5 +422,67 @@ def test_run_directories_of_an_older_format_are_refused_with_one_line(fakes, tmp
         con.execute("CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT)")
         con.execute("INSERT INTO meta VALUES ('schema_version', '1')")
     assert main(oracle_args(older, tmp_path / "cache")) == EXIT_REFUSED
-    assert "results database schema 1, this version reads 2" in one_error_line(capsys)
+    assert "results database schema 1, this version reads 3" in one_error_line(capsys)
     assert not (older / "config.json").exists()  # refused before anything was written
+
+
+PROBE = '''
+from methods.base import METHODS, Extraction
+from tests.fake_methods import FakeSDF
+
+
+class Probe(FakeSDF):
+    name = "test_probe"
+
+    def extract(self, grid_field, N):
+        ex = super().extract(grid_field, N)
+        return Extraction(ex.vertices * {scale}, ex.faces)
+
+
+def register():
+    METHODS.unregister(Probe.name)
+    METHODS.register(Probe.name, Probe)
+'''
+
+
+@pytest.mark.slow
+def test_a_changed_method_is_refused_in_its_run_directory_or_recomputed_on_request(fakes, tmp_path, monkeypatch,
+                                                                                    capsys):
+    """A run directory never mixes two versions of the code: after the probe method's extractor
+    changes (meshes scaled by 1.0 -> 1.1), re-running into the same --out is refused with one line;
+    with --recompute-stale its job runs again and gives the new result (the other method's jobs,
+    whose code did not change, are kept)."""
+    import sys
+
+    from benchmark.run.cache import code_digest
+    from methods.base import METHODS
+
+    monkeypatch.syspath_prepend(str(tmp_path))
+    probe = tmp_path / "zz_probe_method.py"
+    out = tmp_path / "run"
+    args = ["--methods", "test_probe", "test_occ", "--mode", "oracle", "--grid", "32", "--eval-points", "20000",
+            "--limit", "1", "--out", str(out), "--no-cache", "--plugin", PLUGIN,
+            "--plugin", "zz_probe_method:register", "--quiet"]
+
+    def run(source, *extra):
+        probe.write_text(source)
+        sys.modules.pop("zz_probe_method", None)
+        code_digest.cache_clear()
+        return main([*args, *extra])
+
+    try:
+        assert run(PROBE.format(scale="1.0")) == 0
+        before = read_results(out).set_index("method")
+        capsys.readouterr()
+        assert run(PROBE.format(scale="1.1")) == EXIT_REFUSED
+        line = one_error_line(capsys)
+        assert "1 finished jobs rows (test_probe) were computed by other code" in line and "--recompute-stale" in line
+        assert run(PROBE.format(scale="1.1"), "--recompute-stale") == 0
+        after = read_results(out).set_index("method")
+        assert after.at["test_probe", "finished"] != before.at["test_probe", "finished"]
+        assert after.at["test_probe", "cd"] > 2 * before.at["test_probe", "cd"]  # the new code's result
+        assert after.at["test_occ", "finished"] == before.at["test_occ", "finished"]  # unchanged code: kept
+    finally:
+        METHODS.unregister("test_probe")
+        sys.modules.pop("zz_probe_method", None)
+        code_digest.cache_clear()

@@ -25,7 +25,7 @@ def test_schema_created_with_wal(tmp_path):
     assert set(JOB_COLUMNS) <= set(db.columns("jobs"))
     assert {"floor_hash", "shape", "status"} <= set(db.columns("floor"))
     assert db.conn.execute("PRAGMA journal_mode").fetchone()[0].lower() == "wal"
-    assert db.get_meta("schema_version") == "2"
+    assert db.get_meta("schema_version") == "3"
     db.close()
 
 

@@ -152,6 +152,9 @@ def build_parser() -> argparse.ArgumentParser:
       help="import MODULE (or MODULE:FUNCTION, then call it) first, in the driver and every worker, "
            "to register extra methods or datasets (repeatable)")
     a("--quiet", action="store_const", const=True, help="no progress bar; one line per finished job (CI logs)")
+    a("--recompute-stale", dest="recompute_stale", action="store_const", const=True,
+      help="in an existing run directory, recompute the finished tasks whose code changed since "
+           "(without it such a run is refused: one directory never mixes two code versions)")
     return p
 
 
@@ -336,7 +339,7 @@ def train_main(argv: Sequence[str]) -> int:
         plan = resolve(configure(args, None))
         from methods.base import get_method
 
-        learned = [m for m in plan.methods if getattr(get_method(m), "learned", False)]
+        learned = [m for m in plan.methods if get_method(m).learned]
         if not learned:
             raise ConfigError(f"train: none of {', '.join(plan.methods)} is a learned method "
                               f"(use --task reconstruct and e.g. --methods sals-knn)")

@@ -107,6 +107,7 @@ class RunConfig:
     no_cache: bool = _f(False, "execution", "caches off")
     plugins: tuple[str, ...] = _f((), "execution", "modules imported first")
     quiet: bool = _f(False, "execution", "one line per finished job")
+    recompute_stale: bool = _f(False, "execution", "recompute finished tasks whose code changed")
 
     def __post_init__(self):
         for f in dataclasses.fields(self):

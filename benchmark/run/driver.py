@@ -15,6 +15,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from benchmark.run.cache import task_code_digest
+from benchmark.run.config import ConfigError
 from benchmark.run.plan import Plan
 from benchmark.run.job import TaskResult, failed_from_exception, now_iso, run_task
 from benchmark.run.records import ResultsDB
@@ -33,8 +35,9 @@ class RunOutcome:
     skipped: int
 
 
-def record_result(db: ResultsDB, run_dir: RunDirectory, result: TaskResult, first_seed: int) -> None:
-    """Write the mesh bytes (if any) and commit the row: the driver's only writing path."""
+def record_result(db: ResultsDB, run_dir: RunDirectory, result: TaskResult, first_seed: int, code: str) -> None:
+    """Write the mesh bytes (if any) and commit the row (``code``: the digest of the code that
+    computed it): the driver's only writing path."""
     spec = result.spec
     mesh_path = None
     if result.mesh_ply is not None:
@@ -45,7 +48,7 @@ def record_result(db: ResultsDB, run_dir: RunDirectory, result: TaskResult, firs
         run_dir.write_mesh(mesh_path, result.mesh_ply)
     common = {"shape": spec.shape, "shape_hash": result.shape_hash, "shape_kind": result.shape_kind,
               "status": result.status, "error": result.error, "seed": spec.seed, "eval_points": spec.eval_points,
-              "metric_preset": spec.metric_preset, "mesh_path": mesh_path, "finished": result.finished}
+              "metric_preset": spec.metric_preset, "mesh_path": mesh_path, "finished": result.finished, "code": code}
     if result.kind == "floor":
         db.write_floor({"floor_hash": result.key, "source": result.shape_info.get("source"),
                         "gt_vertices": result.shape_info.get("gt_vertices"),
@@ -61,6 +64,19 @@ def record_result(db: ResultsDB, run_dir: RunDirectory, result: TaskResult, firs
         "cache_rejected": len(result.cache_rejected), "device": result.device, "host": result.host,
         "versions": result.versions, "info": result.info, "started": result.started, **common,
     }, result.metrics, result.timings, sweep=spec.sweep, fitted=int(bool(result.info.get("fitted"))))
+
+
+def fresh_results(db: ResultsDB, table: str, tasks: list, codes: dict[str, str], recompute: bool,
+                  where: Path) -> set[str]:
+    """Keys of the tasks with an ``ok`` row computed by today's code. A finished task whose code
+    changed is refused (ConfigError, one line) unless ``recompute``, which runs it again."""
+    done = db.ok_codes(table)
+    stale = [t for t in tasks if t.key in done and done[t.key] != codes[t.key]]
+    if stale and not recompute:
+        what = sorted({getattr(t, "method", None) or "floor" for t in stale})
+        raise ConfigError(f"{where}: {len(stale)} finished {table} rows ({', '.join(what)}) were computed by other "
+                          f"code than today's; pass --recompute-stale to recompute them, or use another --out")
+    return {t.key for t in tasks if t.key in done} - {t.key for t in stale}
 
 
 def _schedule(plan: Plan, todo: list):
@@ -93,10 +109,16 @@ def run(plan: Plan, run_dir: RunDirectory, record: dict, executor=None) -> RunOu
 
     config = plan.config
     db = ResultsDB(run_dir.path / "results.db")  # first: a database of another schema is refused untouched
+    floors, jobs = build_tasks(plan)
+    codes = {t.key: task_code_digest(t) for t in [*floors, *jobs]}
+    try:
+        done_jobs = fresh_results(db, "jobs", jobs, codes, config.recompute_stale, run_dir.path)
+        done_floors = fresh_results(db, "floor", floors, codes, config.recompute_stale, run_dir.path)
+    except ConfigError:
+        db.close()
+        raise
     record = {**record, "started": now_iso()}
     run_dir.write_config(record)
-    floors, jobs = build_tasks(plan)
-    done_jobs, done_floors = db.ok_hashes("jobs"), db.ok_hashes("floor")
     attempts = db.attempts()
     todo = [f for f in floors if f.key not in done_floors] + [j for j in jobs if j.key not in done_jobs]
     todo.sort(key=_schedule(plan, todo))
@@ -113,7 +135,7 @@ def run(plan: Plan, run_dir: RunDirectory, record: dict, executor=None) -> RunOu
                 outcome = failed_from_exception(spec, outcome)
             if outcome.kind == "job":
                 outcome.attempts = attempts.get(outcome.key, 0) + max(1, outcome.attempts)
-            record_result(db, run_dir, outcome, config.seeds[0])
+            record_result(db, run_dir, outcome, config.seeds[0], codes[outcome.key])
             display.finished(outcome)
     finally:
         display.close()

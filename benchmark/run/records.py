@@ -34,7 +34,7 @@ import pandas as pd
 from benchmark.run.schema import PRIMARY_KEYS, TABLES, sql_columns
 from benchmark.serialize import dumps
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 DB_NAME = "results.db"
 
 JOB_COLUMNS: dict[str, str] = sql_columns("jobs")
@@ -205,6 +205,11 @@ class ResultsDB:
         """Hashes of rows with status 'ok' (jobs or floor rows that need not run again)."""
         key = PRIMARY_KEYS[table]
         return {r[0] for r in self.conn.execute(f'SELECT "{key}" FROM "{table}" WHERE status = ?', ("ok",))}
+
+    def ok_codes(self, table: str = "jobs") -> dict[str, str | None]:
+        """{hash: code digest} of the rows with status 'ok': which code computed each finished task."""
+        key = PRIMARY_KEYS[table]
+        return dict(self.conn.execute(f'SELECT "{key}", code FROM "{table}" WHERE status = ?', ("ok",)))
 
     def attempts(self) -> dict[str, int]:
         return {h: int(a or 0) for h, a in self.conn.execute("SELECT config_hash, attempts FROM jobs")}

@@ -83,6 +83,7 @@ JOB_COLUMNS: tuple[Column, ...] = (
     _c("info", "TEXT", "bookkeeping"),
     _c("started", "TEXT", "bookkeeping"),
     _c("finished", "TEXT", "bookkeeping"),
+    _c("code", "TEXT", "bookkeeping"),
     _c("extra", "TEXT", "bookkeeping"),
 )
 
@@ -102,6 +103,7 @@ FLOOR_COLUMNS: tuple[Column, ...] = (
     _c("metric_preset", "TEXT", "setup"),
     _c("mesh_path", "TEXT", "bookkeeping"),
     _c("finished", "TEXT", "bookkeeping"),
+    _c("code", "TEXT", "bookkeeping"),
     _c("extra", "TEXT", "bookkeeping"),
 )
 
