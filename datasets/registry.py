@@ -46,6 +46,8 @@ class Dataset:
 
     #: The registry name (e.g. 'abc').
     name: str = ""
+    #: Whether the shapes are point clouds (only the reconstruct task can use them).
+    point_clouds: bool = False
 
     def names(self) -> list[str]:
         """Shape names in dataset order; never opens a mesh file."""

@@ -70,6 +70,8 @@ class Method:
     #: exact fields: this class) or ``'reconstruct'`` (a mesh from a raw point cloud:
     #: :class:`PointCloudMethod`).
     task: ClassVar[str] = "encode"
+    #: Whether the method needs a network trained across shapes (:class:`LearnedPointCloudMethod`).
+    learned: ClassVar[bool] = False
 
     def __init__(self, **params: Any):
         unknown = sorted(set(params) - set(self.parameters))
@@ -134,8 +136,6 @@ class PointCloudMethod(Method):
 
     task: ClassVar[str] = "reconstruct"
     input_kind: ClassVar[str] = "points"
-    #: Whether the method needs a network trained across shapes (:class:`LearnedPointCloudMethod`).
-    learned: ClassVar[bool] = False
 
     def reconstruct(self, points: np.ndarray, N: int, device=None) -> Extraction:
         """A mesh (canonical frame) from ``points`` (P, 3) float64 in the canonical frame; ``N`` is

@@ -296,7 +296,7 @@ def fit(method, samples, targets: dict, budget: str | Budget, seed: int = 0, dev
     model = make_network(method.input_dim, method.output_dim, **budget.network_config()).to(device)
     model.train()
     optimizer = make_optimizer(model, budget)
-    needs_grad = bool(getattr(method, "loss_needs_input_grad", False))
+    needs_grad = method.loss_needs_input_grad
     T, B = int(budget.iterations), int(budget.batch_size)
     warmup = round(budget.warmup_fraction * T)
     losses = torch.zeros(T, dtype=torch.float32, device=device)

@@ -362,7 +362,7 @@ def train(method, shapes: Sequence[Shape], budget: str | KNNBudget, seed: int = 
     model = make_knn_network(method.network_kind, out_dim=method.output_dim, **budget.network_config()).to(device)
     model.train()
     optimizer = torch.optim.AdamW(model.parameters(), lr=budget.lr, weight_decay=budget.weight_decay)
-    needs_grad = bool(getattr(method, "loss_needs_input_grad", False))
+    needs_grad = method.loss_needs_input_grad
     T, every = int(budget.steps), int(budget.log_every)
     losses = torch.zeros(T, dtype=torch.float32, device=device)
     synchronize(device)

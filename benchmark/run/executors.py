@@ -283,7 +283,7 @@ class RayExecutor:
 
     def resources_for(self, spec) -> dict:
         """Ray resources of one task: CPUs always; GPUs only for fitting jobs on a cluster with GPUs."""
-        gpus = self.gpus_per_job if (getattr(spec, "uses_fitting", False) and self.cluster_gpus > 0) else 0.0
+        gpus = self.gpus_per_job if (spec.uses_fitting and self.cluster_gpus > 0) else 0.0
         return {"num_cpus": self.cpus_per_job, "num_gpus": gpus}
 
     def run(self, fn: Callable, specs: Sequence, on_stage: StageCallback | None = None) -> Iterator[tuple[Any, Any]]:

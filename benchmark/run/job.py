@@ -141,7 +141,7 @@ def _run(spec, progress: Callable | None, body: Callable) -> TaskResult:
 
                 torch.set_num_threads(int(spec.threads))
             result.versions = package_versions()
-            device = get_device(getattr(spec, "device", None))
+            device = get_device(spec.device if spec.kind == "job" else None)
             timer.sync = timer_sync(device)
             result.device = describe_device(device)
             with stage("load"):

@@ -123,7 +123,7 @@ def resolve(config: RunConfig) -> Plan:
         raise ConfigError(str(exc).splitlines()[0] if str(exc) else type(exc).__name__) from None
     if not shapes:
         raise ConfigError(f"dataset '{config.dataset}' has no shapes with these options ({options or 'none'})")
-    if getattr(load_dataset(config.dataset, options), "point_clouds", False):
+    if load_dataset(config.dataset, options).point_clouds:
         from benchmark.run.config import DEFAULT_PC_POINTS
 
         if config.task != "reconstruct":
@@ -164,7 +164,7 @@ def _budget(config: RunConfig, methods: tuple[str, ...]):
     if config.task == "reconstruct":
         from methods.knn_training import get_knn_budget
 
-        learned = any(getattr(METHODS.get(m), "learned", False) for m in methods)
+        learned = any(METHODS.get(m).learned for m in methods)
         if not learned and config.budget_params:
             raise ConfigError(f"--budget-param: none of {', '.join(methods)} trains a network")
         return get_knn_budget(config.budget, config.budget_params) if learned else None

@@ -66,7 +66,7 @@ def trains(method: str) -> bool:
     from methods.base import METHODS
 
     cls = METHODS.get(method)
-    return cls.task == "encode" or bool(getattr(cls, "learned", False))
+    return cls.task == "encode" or cls.learned
 
 
 def budget_parameters(task: str) -> dict[str, Param]:
