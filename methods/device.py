@@ -19,6 +19,30 @@ import torch
 #: Environment variable that overrides the automatic device choice.
 DEVICE_ENV = "SALSBENCH_DEVICE"
 
+#: Environment variable (read by torch at import) that picks the family of torch's CPU kernels.
+CAPABILITY_ENV = "ATEN_CPU_CAPABILITY"
+#: The CPU float paths a learned result is checked across: torch's scalar kernels, its AVX2
+#: kernels, and the best this CPU has (the variable unset). Each rounds differently, so a fit
+#: diverges on them like a change of seed.
+FLOAT_PATHS = ("default", "avx2", "native")
+
+
+def float_path_environment(path: str, base: dict[str, str] | None = None) -> dict[str, str]:
+    """A copy of ``base`` (default: this process's environment) in which torch runs the CPU kernels
+    of ``path`` (one of :data:`FLOAT_PATHS`; ``'native'`` unsets the variable)."""
+    if path not in FLOAT_PATHS:
+        raise ValueError(f"unknown float path {path!r}; known: {', '.join(FLOAT_PATHS)}")
+    env = dict(os.environ if base is None else base)
+    env.pop(CAPABILITY_ENV, None)
+    if path != "native":
+        env[CAPABILITY_ENV] = path
+    return env
+
+
+def cpu_capability() -> str:
+    """The kernel family torch's CPU operators run in this process, e.g. ``'AVX512'`` or ``'DEFAULT'``."""
+    return torch.backends.cpu.get_cpu_capability()
+
 
 @lru_cache(maxsize=None)
 def _device_from(spec: str | None) -> torch.device:

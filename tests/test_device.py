@@ -35,3 +35,15 @@ def test_a_block_left_by_an_exception_restores_the_default():
 def test_the_device_is_the_cpu_here_unless_asked(monkeypatch):
     monkeypatch.setenv("SALSBENCH_DEVICE", "cpu")
     assert get_device().type == "cpu"
+
+
+def test_float_path_environment_sets_or_clears_torchs_kernel_family():
+    from methods.device import CAPABILITY_ENV, FLOAT_PATHS, float_path_environment
+
+    base = {"PATH": "/bin", CAPABILITY_ENV: "avx2"}
+    assert FLOAT_PATHS == ("default", "avx2", "native")
+    assert float_path_environment("default", base) == {"PATH": "/bin", CAPABILITY_ENV: "default"}
+    assert float_path_environment("native", base) == {"PATH": "/bin"}  # unset: the CPU's best
+    assert base[CAPABILITY_ENV] == "avx2"  # the caller's mapping is left alone
+    with pytest.raises(ValueError, match="unknown float path 'avx512'"):
+        float_path_environment("avx512", base)

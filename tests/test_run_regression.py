@@ -4,8 +4,10 @@ import hashlib
 
 import numpy as np
 import pandas as pd
+import pytest
 
-from benchmark.run.regression import BASELINES, TIERS, Tier, Tolerance, compare, read_list, verify_manifest
+from benchmark.run.regression import (BASELINES, SPREAD_MARGIN, TIERS, RegressionError, Tier, Tolerance, compare,
+                                      mean_tolerances_of, read_list, spread_tolerances, verify_manifest)
 from tests.conftest import SHARED_DATA, requires_shared
 
 
@@ -23,7 +25,50 @@ def frame(overrides=None):
 
 def test_identical_tables_do_not_move():
     assert compare(frame(), frame(), TIERS["oracle"]).empty
-    assert compare(frame(), frame(), TIERS["neural"]).empty
+    assert compare(frame(), frame(), TIERS["neural"], spread_tolerances(spread(), frame())).empty
+
+
+def spread(cd_by_seed=((0, 0.004), (1, 0.0045), (2, 0.0035))):
+    """The table of frame() run at a few seeds on two float paths, sals's CD set per seed (both shapes)."""
+    runs = []
+    for path in ("default", "native"):
+        for seed, cd in cd_by_seed:
+            run = frame({(s, "sals", "cd"): cd for s in ("a", "b")}).assign(seed=seed, float_path=path)
+            run.loc[run.method == "sdf", "ecd"] = 0.07 + 0.001 * seed  # sdf's ECD mean moves by up to 0.002
+            runs.append(run)
+    return pd.concat(runs, ignore_index=True)
+
+
+def test_spread_tolerances_are_the_margin_times_the_largest_deviation_of_a_runs_mean():
+    tol = spread_tolerances(spread(), frame())
+    # sals CD: baseline mean 0.004, run means 0.004, 0.0045, 0.0035 -> largest deviation 0.0005
+    assert tol.at["sals", "cd"] == pytest.approx(SPREAD_MARGIN * 0.0005)
+    assert tol.at["sdf", "ecd"] == pytest.approx(SPREAD_MARGIN * 0.002)
+    assert tol.at["sdf", "cd"] == 0.0 and tol.at["sals", "ecd"] == 0.0
+
+
+def test_the_mean_tier_ignores_per_job_noise_that_averages_out_and_catches_a_moved_mean():
+    tier, tol = TIERS["neural"], spread_tolerances(spread(), frame())
+    noisy = frame({("a", "sals", "cd"): 0.0049, ("b", "sals", "cd"): 0.0031})  # per job +-22 %, same mean
+    assert compare(noisy, frame(), tier, tol).empty
+    inside = frame({("a", "sals", "cd"): 0.0047, ("b", "sals", "cd"): 0.0047})  # mean +0.0007 <= 0.00075
+    assert compare(inside, frame(), tier, tol).empty
+    beyond = frame({("a", "sals", "cd"): 0.0048, ("b", "sals", "cd"): 0.0048})
+    moved = compare(beyond, frame(), tier, tol)
+    assert moved.metric.tolist() == ["cd (mean)"] and moved.method.tolist() == ["sals"]
+    failed = compare(frame({("b", "sdf", "status"): "failed"}), frame(), tier, tol)
+    assert "status" in failed.metric.tolist()  # statuses stay per job
+    with pytest.raises(RegressionError, match="spread"):
+        compare(frame(), frame(), tier, None)
+
+
+def test_the_committed_neural_spread_gives_a_tolerance_for_every_method_and_metric():
+    baseline = pd.read_csv(BASELINES / "neural" / "results.csv")
+    tol = mean_tolerances_of(TIERS["neural"], baseline)
+    assert set(tol.index) == set(baseline.method) and tol.notna().all().all()
+    assert (tol > 0).all().all()
+    committed = pd.read_csv(BASELINES / "neural" / "spread.csv")
+    assert set(committed.float_path) == {"default", "avx2", "native"} and committed.seed.nunique() >= 5
 
 
 def test_oracle_tier_catches_a_tiny_metric_change_and_reports_it():

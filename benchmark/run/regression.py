@@ -16,13 +16,13 @@ Tiers and tolerances (a value passes when ``|now - baseline| <= atol + rtol * |b
   (rtol 1e-5 on metrics; mesh counts rtol 1e-3, i.e. a handful of faces out of ~10^5).
 * ``neural``: the ``tiny-grid`` budget (the feature-grid backbone of the default ``cpu`` budget at
   CI size), all four methods, grid 64, seed 0. On one machine the tier is deterministic (same seed,
-  same thread count: identical tables). Another CPU can change float reduction order, and a fit may
-  then drift like a new seed; the seed-0 vs seed-1 spread of this tier bounds that, measured on the
-  28 jobs: median relative change CD 4.7%, NC 0.7%, F1@0.005 5.0%, F1@0.01 1.7%, ECD 11%, EF1 18%
-  (p90: CD 30%, ECD 41%, EF1 54%). Tolerances sit a little above that median (CD 8%, NC 1%,
-  F1@0.005 8% + 0.02, F1@0.01 5% + 0.02, ECD 15% + 1e-3, EF1 25% + 0.03), and the ranking of methods
-  on the means of CD and ECD must not flip where the baseline gap exceeds twice the tolerance. A
-  broken loss or extractor moves far more than that (see tests/test_run_regression.py).
+  same thread count: identical tables). On another CPU torch's kernels round differently and a fit
+  diverges like a change of seed, so per-job values are left to the oracle tier: this tier compares
+  each method's *mean* of each metric over the subset's jobs, and the ranking of the methods on
+  those means. Its tolerances are derived from ``reports/baselines/neural/spread.csv``, the tier run
+  at seeds 0-4 on every CPU float path (``python -m benchmark.run.regression --tier neural
+  --measure-spread 0 1 2 3 4``): per method and metric, :data:`SPREAD_MARGIN` times the largest
+  distance of a (path, seed) mean from the baseline's mean. Job statuses are still compared per job.
 """
 
 from __future__ import annotations
@@ -40,8 +40,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from benchmark.run.executors import available_cores
 from benchmark.run.schema import columns, regression_columns
 from methods.base import available_methods
+from methods.device import FLOAT_PATHS, float_path_environment
 
 REPO = Path(__file__).resolve().parents[2]
 BASELINES = REPO / "reports" / "baselines"
@@ -57,12 +59,25 @@ class Tolerance:
 
 @dataclass(frozen=True)
 class Tier:
+    """A regression tier: its run's arguments and how its results are compared.
+
+    ``tolerances``: per metric, for per-job comparison (``compare_means`` False). ``compare_means``:
+    compare each method's mean over the jobs instead, within the tolerances derived from the tier's
+    ``spread.csv`` (:func:`spread_tolerances`); ``ranking_metrics``: metrics whose order of the
+    methods' means must hold where the baseline's gap is clear."""
+
     name: str
     run_args: tuple[str, ...]
     tolerances: dict[str, Tolerance]
     check_ranking: bool = False
     ranking_metrics: tuple[str, ...] = ()
+    compare_means: bool = False
     notes: str = ""
+
+
+#: A mean may move this many times the largest seed x float-path deviation measured for it.
+SPREAD_MARGIN = 1.5
+METRICS = ("cd", "nc", "f1_005", "f1_01", "ecd", "ef1")
 
 
 #: Mesh counts compared by every tier (from the result schema).
@@ -73,7 +88,7 @@ TIERS: dict[str, Tier] = {
         name="oracle",
         run_args=("--mode", "oracle", "--grid", "128", "--eval-points", "200000", "--seed", "0"),
         tolerances={
-            **{m: Tolerance(1e-5, 1e-8) for m in ("cd", "nc", "f1_005", "f1_01", "ecd", "ef1")},
+            **{m: Tolerance(1e-5, 1e-8) for m in METRICS},
             **{c: Tolerance(1e-3, 2) for c in _COUNTS},
         },
         notes="deterministic; tolerance covers cross-CPU floating-point noise only",
@@ -81,17 +96,11 @@ TIERS: dict[str, Tier] = {
     "neural": Tier(
         name="neural",
         run_args=("--mode", "neural", "--budget", "tiny-grid", "--grid", "64", "--eval-points", "100000", "--seed", "0"),
-        tolerances={
-            "cd": Tolerance(0.08, 1e-4),
-            "nc": Tolerance(0.01, 0.0),
-            "f1_005": Tolerance(0.08, 0.02),
-            "f1_01": Tolerance(0.05, 0.02),
-            "ecd": Tolerance(0.15, 1e-3),
-            "ef1": Tolerance(0.25, 0.03),
-        },
+        tolerances={},
         check_ranking=True,
         ranking_metrics=("cd", "ecd"),
-        notes="tiny-grid budget; deterministic on one machine; tolerances near the median seed-to-seed spread",
+        compare_means=True,
+        notes=f"tiny-grid budget; per-method means within {SPREAD_MARGIN}x the seed x float-path spread",
     ),
 }
 
@@ -121,22 +130,39 @@ def verify_manifest(data_dir: Path, manifest: Path = BASELINES / "abc_subset.sha
     return problems
 
 
-def run_tier(tier: Tier, data_dir: Path, out_dir: Path, python: str = sys.executable,
-             extra_args: tuple[str, ...] = ()) -> pd.DataFrame:
-    """Run the tier's two benchmark runs (subset + non-manifold pairs); return their results."""
+def run_tier(tier: Tier, data_dir: Path, out_dir: Path, workers: int, python: str = sys.executable,
+             extra_args: tuple[str, ...] = (), env: dict[str, str] | None = None) -> pd.DataFrame:
+    """Run the tier's two benchmark runs (subset + non-manifold pairs) on ``workers`` processes of
+    one torch thread each (the same numbers whatever the count); return their results.
+
+    ``extra_args`` follow the tier's own (a later ``--seed`` replaces the tier's); ``env`` replaces
+    the environment of the runs (e.g. with ``ATEN_CPU_CAPABILITY`` set)."""
     frames = []
     for dataset, list_file in (("abc", "abc_subset.txt"), ("abc-nonmanifold", "abc_subset_nonmanifold.txt")):
         run_dir = out_dir / f"{tier.name}-{dataset}"
         cmd = [
             python, str(REPO / "run_benchmark.py"), "--methods", *available_methods(), "--dataset", dataset,
             "--data-dir", str(data_dir), "--list", str(BASELINES / list_file), "--out", str(run_dir),
-            "--quiet", *tier.run_args, *extra_args,
+            "--quiet", "--executor", "process", "--workers", str(workers), "--threads", "1",
+            *tier.run_args, *extra_args,
         ]
         print("$ " + " ".join(cmd), flush=True)
-        proc = subprocess.run(cmd, cwd=REPO)
+        proc = subprocess.run(cmd, cwd=REPO, env=env)
         if proc.returncode not in (0, 3):  # 3: finished with failed jobs (compared as status changes)
             raise RegressionError(f"run_benchmark.py exited with {proc.returncode} for tier {tier.name} ({dataset})")
         frames.append(pd.read_csv(run_dir / "results.csv"))
+    return pd.concat(frames, ignore_index=True)
+
+
+def measure_spread(tier: Tier, data_dir: Path, work_dir: Path, seeds: tuple[int, ...],
+                   workers: int, paths: tuple[str, ...] = FLOAT_PATHS) -> pd.DataFrame:
+    """The tier's jobs at every seed of ``seeds`` on every CPU float path of ``paths`` (one run per
+    path): the per-job results with a ``float_path`` column, the data its tolerances are derived from."""
+    frames = []
+    for path in paths:
+        results = baseline_columns(run_tier(tier, data_dir, work_dir / path, workers,
+                                            extra_args=("--seed", *map(str, seeds)), env=float_path_environment(path)))
+        frames.append(results.assign(float_path=path))
     return pd.concat(frames, ignore_index=True)
 
 
@@ -146,8 +172,31 @@ def _within(now: float, base: float, tol: Tolerance) -> bool:
     return abs(float(now) - float(base)) <= tol.atol + tol.rtol * abs(float(base))
 
 
-def compare(now: pd.DataFrame, baseline: pd.DataFrame, tier: Tier) -> pd.DataFrame:
-    """Rows that moved: metric, method, shape, baseline, now, tolerance (empty when all agree)."""
+def method_means(results: pd.DataFrame) -> pd.DataFrame:
+    """Each method's mean of each metric over its ``ok`` jobs (rows: methods, columns: metrics)."""
+    ok = results[results.status == "ok"]
+    return ok.groupby("method")[[m for m in METRICS if m in ok.columns]].mean()
+
+
+def spread_tolerances(spread: pd.DataFrame, baseline: pd.DataFrame, margin: float = SPREAD_MARGIN) -> pd.DataFrame:
+    """Per method (rows) and metric (columns) the distance a mean may move: ``margin`` times the
+    largest distance, over the (float path, seed) runs of ``spread``, of that run's method mean
+    from the baseline's."""
+    base = method_means(baseline)
+    ok = spread[spread.status == "ok"]
+    runs = ok.groupby(["float_path", "seed", "method"])[list(base.columns)].mean()
+    methods = runs.index.get_level_values("method")
+    deviation = (runs - base.reindex(methods).to_numpy()).abs()
+    return margin * deviation.groupby(level="method").max()
+
+
+def compare(now: pd.DataFrame, baseline: pd.DataFrame, tier: Tier,
+            mean_tolerances: pd.DataFrame | None = None) -> pd.DataFrame:
+    """Rows that moved: metric, method, shape, baseline, now, tolerance (empty when all agree).
+
+    Job presence and status are compared per job. Metrics: per job within ``tier.tolerances``, or,
+    for a ``compare_means`` tier, each method's mean within ``mean_tolerances``
+    (:func:`spread_tolerances`)."""
     moved = []
     merged = baseline.merge(now, on=KEY, how="outer", suffixes=("_base", "_now"), indicator=True)
     for r in merged.to_dict("records"):
@@ -160,35 +209,59 @@ def compare(now: pd.DataFrame, baseline: pd.DataFrame, tier: Tier) -> pd.DataFra
             moved.append({**where, "metric": "status", "baseline": r["status_base"], "now": r["status_now"],
                           "tolerance": "equal"})
             continue
-        for metric, tol in tier.tolerances.items():
+        for metric, tol in ({} if tier.compare_means else tier.tolerances).items():
             b, n = r.get(f"{metric}_base"), r.get(f"{metric}_now")
             if b is None and n is None:
                 continue
             if not _within(n, b, tol):
                 moved.append({**where, "metric": metric, "baseline": b, "now": n,
                               "tolerance": f"rtol {tol.rtol:g}, atol {tol.atol:g}"})
+    if tier.compare_means:
+        if mean_tolerances is None:
+            raise RegressionError(f"tier '{tier.name}' compares means: it needs the tolerances of its spread.csv")
+        moved.extend(_mean_changes(now, baseline, mean_tolerances))
+
+        def margin(metric, method, base):
+            return float(mean_tolerances.at[method, metric])
+    else:
+        def margin(metric, method, base):
+            return tier.tolerances[metric].atol + tier.tolerances[metric].rtol * abs(base)
     if tier.check_ranking:
-        moved.extend(_ranking_changes(now, baseline, tier))
+        moved.extend(_ranking_changes(now, baseline, tier.ranking_metrics, margin))
     return pd.DataFrame(moved, columns=["metric", "method", "shape", "seed", "baseline", "now", "tolerance"])
 
 
-def _ranking_changes(now: pd.DataFrame, baseline: pd.DataFrame, tier: Tier) -> list[dict]:
-    """Pairs of methods whose order on a metric's mean flipped although the baseline gap was clear."""
+def _mean_changes(now: pd.DataFrame, baseline: pd.DataFrame, tolerances: pd.DataFrame) -> list[dict]:
+    """Method means that moved further from the baseline's than their tolerance."""
     out = []
-    ok_now, ok_base = now[now.status == "ok"], baseline[baseline.status == "ok"]
-    for metric in tier.ranking_metrics:
-        mb = ok_base.groupby("method")[metric].mean()
-        mn = ok_now.groupby("method")[metric].mean()
-        tol = tier.tolerances[metric]
+    mb, mn = method_means(baseline), method_means(now)
+    for method in mb.index.intersection(mn.index):
+        for metric in mb.columns.intersection(mn.columns):
+            tol = tolerances.at[method, metric] if method in tolerances.index and metric in tolerances else np.nan
+            b, n = mb.at[method, metric], mn.at[method, metric]
+            if not np.isfinite(tol):
+                raise RegressionError(f"no measured spread for {method} {metric}: re-run --measure-spread")
+            if not abs(n - b) <= tol:
+                out.append({"metric": f"{metric} (mean)", "method": method, "shape": "(mean)", "seed": "",
+                            "baseline": b, "now": n, "tolerance": f"+-{tol:.3g} (spread x {SPREAD_MARGIN:g})"})
+    return out
+
+
+def _ranking_changes(now: pd.DataFrame, baseline: pd.DataFrame, metrics: tuple[str, ...], margin) -> list[dict]:
+    """Pairs of methods whose order on a metric's mean flipped although the baseline gap was clear:
+    larger than ``margin(metric, method, baseline mean)`` of both methods together."""
+    out = []
+    mb, mn = method_means(baseline), method_means(now)
+    for metric in metrics:
         methods = sorted(set(mb.index) & set(mn.index))
         for i, a in enumerate(methods):
             for b in methods[i + 1:]:
-                gap = mb[a] - mb[b]
-                clear = abs(gap) > 2 * (tol.atol + tol.rtol * max(abs(mb[a]), abs(mb[b])))
-                if clear and np.sign(mn[a] - mn[b]) != np.sign(gap):
+                gap = mb.at[a, metric] - mb.at[b, metric]
+                clear = abs(gap) > margin(metric, a, mb.at[a, metric]) + margin(metric, b, mb.at[b, metric])
+                if clear and np.sign(mn.at[a, metric] - mn.at[b, metric]) != np.sign(gap):
                     out.append({"metric": f"{metric} ranking", "method": f"{a} vs {b}", "shape": "(mean)", "seed": "",
-                                "baseline": f"{mb[a]:.4g} vs {mb[b]:.4g}", "now": f"{mn[a]:.4g} vs {mn[b]:.4g}",
-                                "tolerance": "order kept"})
+                                "baseline": f"{mb.at[a, metric]:.4g} vs {mb.at[b, metric]:.4g}",
+                                "now": f"{mn.at[a, metric]:.4g} vs {mn.at[b, metric]:.4g}", "tolerance": "order kept"})
     return out
 
 
@@ -210,6 +283,16 @@ def baseline_columns(frame: pd.DataFrame) -> pd.DataFrame:
     return frame[[c for c in keep if c in frame.columns]]
 
 
+def mean_tolerances_of(tier: Tier, baseline: pd.DataFrame) -> pd.DataFrame | None:
+    """The mean tolerances of a ``compare_means`` tier, from its committed spread.csv (else None)."""
+    if not tier.compare_means:
+        return None
+    path = BASELINES / tier.name / "spread.csv"
+    if not path.is_file():
+        raise RegressionError(f"no spread at {path}; measure it with --tier {tier.name} --measure-spread 0 1 2 3 4")
+    return spread_tolerances(pd.read_csv(path), baseline)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmark.run.regression", description=__doc__.split("\n\n")[0])
     parser.add_argument("--tier", choices=[*TIERS, "all"], default="all", help="which tier(s) to run (default: all)")
@@ -218,8 +301,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--update-baselines", action="store_true",
                         help="rewrite reports/baselines/<tier>/ from this run instead of comparing")
     parser.add_argument("--work-dir", type=Path, default=None, help="where the runs go (default: a temporary folder)")
-    parser.add_argument("--threads", type=int, default=None,
-                        help="torch threads per job (to measure the neural tier's run-to-run spread: 1 vs 2)")
+    parser.add_argument("--workers", type=int, default=available_cores(),
+                        help="parallel jobs, one torch thread each (default: the cores, here %(default)s)")
+    parser.add_argument("--measure-spread", type=int, nargs="+", metavar="SEED", default=None,
+                        help="instead of comparing: run the tier at these seeds on every CPU float path "
+                             f"({', '.join(FLOAT_PATHS)}) and write reports/baselines/<tier>/spread.csv")
     args = parser.parse_args(argv)
 
     if not args.data_dir.is_dir():
@@ -236,10 +322,17 @@ def main(argv: list[str] | None = None) -> int:
     work.mkdir(parents=True, exist_ok=True)
     tiers = list(TIERS.values()) if args.tier == "all" else [TIERS[args.tier]]
     failed = False
+    if args.measure_spread:
+        for tier in tiers:
+            spread = measure_spread(tier, args.data_dir, work / f"spread-{tier.name}", tuple(args.measure_spread),
+                                    args.workers)
+            dest = BASELINES / tier.name / "spread.csv"
+            spread.sort_values(["float_path", *KEY]).to_csv(dest, index=False, float_format="%.9g")
+            print(f"spread of tier '{tier.name}' ({len(spread)} jobs) written to {dest.relative_to(REPO)}")
+        return 0
     for tier in tiers:
         try:
-            extra = ("--threads", str(args.threads)) if args.threads else ()
-            results = baseline_columns(run_tier(tier, args.data_dir, work, extra_args=extra))
+            results = baseline_columns(run_tier(tier, args.data_dir, work, args.workers))
         except RegressionError as exc:
             print(f"regression tier '{tier.name}': {exc}", file=sys.stderr)
             failed = True
@@ -253,7 +346,13 @@ def main(argv: list[str] | None = None) -> int:
                   file=sys.stderr)
             failed = True
             continue
-        moved = compare(results, pd.read_csv(baseline_csv), tier)
+        baseline = pd.read_csv(baseline_csv)
+        try:
+            moved = compare(results, baseline, tier, mean_tolerances_of(tier, baseline))
+        except RegressionError as exc:
+            print(f"regression tier '{tier.name}': {exc}", file=sys.stderr)
+            failed = True
+            continue
         if moved.empty:
             print(f"regression tier '{tier.name}': {len(results)} jobs match the baseline ({tier.notes})")
         else:
