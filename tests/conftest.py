@@ -1,7 +1,18 @@
-"""Shared test fixtures: the real meshes in ../shared/data (skipped, with a reason, when absent)."""
+"""Shared test fixtures: the real meshes in ../shared/data (skipped, with a reason, when absent), and
+the seeds, threads and measurement log of the tests that fit or train a network (``learned``).
+
+A ``learned`` test asserts bounds on what a fit reaches. Those bounds hold across seeds and CPU float
+paths, and ``scripts/measure_learned_spread.py`` measures that spread by running the learned tests
+with these variables set:
+
+* ``SALSBENCH_TEST_SEEDS`` (``0,1,2,3,4``): the seeds a test taking ``fit_seed`` runs at (default 0);
+* ``SALSBENCH_TEST_THREADS``: the torch threads of ``torch_threads`` (default 1);
+* ``SALSBENCH_SPREAD_OUT``: a JSON-lines file that ``measured(...)`` appends each test's values to.
+"""
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -49,12 +60,49 @@ def fakes():
         yield
 
 
+SEEDS_ENV = "SALSBENCH_TEST_SEEDS"
+THREADS_ENV = "SALSBENCH_TEST_THREADS"
+SPREAD_OUT_ENV = "SALSBENCH_SPREAD_OUT"
+
+
+def pytest_generate_tests(metafunc):
+    if "fit_seed" in metafunc.fixturenames:
+        seeds = [int(s) for s in os.environ.get(SEEDS_ENV, "0").split(",")]
+        metafunc.parametrize("fit_seed", seeds, ids=[f"seed{s}" for s in seeds])
+
+
 @pytest.fixture
-def one_torch_thread():
-    """torch on one thread for one test (bit-identical reruns; the machine is shared), restored after."""
+def torch_threads():
+    """torch on $SALSBENCH_TEST_THREADS threads (default 1: bit-identical reruns on a shared machine)
+    for one test, restored after; the thread count."""
     import torch
 
     threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
+    wanted = int(os.environ.get(THREADS_ENV, "1"))
+    torch.set_num_threads(wanted)
+    yield wanted
     torch.set_num_threads(threads)
+
+
+@pytest.fixture
+def measured(request):
+    """``measured(name=value, ...)``: log a learned test's measured values to $SALSBENCH_SPREAD_OUT (one
+    JSON line with the test, its parameters, seed, threads and torch's CPU kernel family); a no-op
+    when the variable is unset. Call it before asserting, so a failing value is logged too."""
+    path = os.environ.get(SPREAD_OUT_ENV)
+
+    def record(**values):
+        if not path:
+            return
+        import torch
+
+        params = dict(getattr(request.node, "callspec", None).params) if hasattr(request.node, "callspec") else {}
+        seed = params.pop("fit_seed", None)
+        row = {"test": f"{request.node.module.__name__.split('.')[-1]}::{request.node.originalname}",
+               "case": "-".join(str(v) for v in params.values()), "seed": seed,
+               "threads": torch.get_num_threads(), "capability": torch.backends.cpu.get_cpu_capability(),
+               **{k: float(v) for k, v in values.items()}}
+        with open(path, "a") as f:
+            f.write(json.dumps(row) + "\n")
+
+    return record

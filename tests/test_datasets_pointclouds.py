@@ -81,6 +81,7 @@ def test_a_mesh_ply_is_not_a_cloud_and_a_cloud_alone_has_no_gt_and_its_own_frame
         get_dataset("pointclouds", data_dir=tmp_path).load("point")
 
 
+@pytest.mark.slow
 def test_clouds_without_a_gt_are_reconstructed_and_listed_apart_from_the_scored(folder, tmp_path):
     """A scan alone is reconstructed like any cloud (mesh written, validity counted) and kept out of
     every metric: the mean table is over the cloud with a GT, the floor has no row for the scan."""

@@ -4,6 +4,7 @@ occ-knn, checked against brute force and hand-made volumes."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
 from benchmark.grid import spacing
@@ -59,6 +60,7 @@ def test_evaluate_knn_gradient_matches_finite_differences():
     assert abs((out2[0, 1] - out[0, 1]) / eps - grad[0, 0, 0]) < 2e-2 * max(1.0, abs(grad[0, 0, 0]))
 
 
+@pytest.mark.slow
 def test_evaluate_knn_is_independent_of_the_chunk_size(monkeypatch):
     """Eval-mode batch norm uses running statistics, so a query's output is its own: 1,000 queries in
     chunks of 7 give what one pass gives (to float32 rounding), gradients included."""

@@ -157,7 +157,8 @@ def test_oracle_sals_cube_is_closed_but_where_grid_edges_cross_its_sharp_edges_t
 
 
 @pytest.mark.slow
-def test_neural_sals_cube_finds_the_twelve_sharp_edges():
+@pytest.mark.learned
+def test_neural_sals_cube_finds_the_twelve_sharp_edges(fit_seed, torch_threads, measured):
     """The cpu budget's grid network fitted 1,000 steps (of its 2,000; ~35 s on one core) to the same
     box, E-DC at N = 64: NDC's edge test finds every one of the 12 box edges along >= 80 % of its
     length (measured at seeds 0-3: the worst edge 0.88-0.97) and CD < 0.012 (0.0064-0.0101). Not
@@ -168,19 +169,16 @@ def test_neural_sals_cube_finds_the_twelve_sharp_edges():
 
     V, F, corners, edges = generic_box()
     budget = get_budget("cpu", {"iterations": 1000})
-    samples = sample_training_data(V, F, budget.num_samples, np.random.default_rng(0))
+    samples = sample_training_data(V, F, budget.num_samples, np.random.default_rng(fit_seed))
     method = get_method("sals")
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        res = fit(method, samples, method.training_targets(ExactFields(V, F), samples), budget, seed=0, device="cpu")
-        grid, _ = method.neural_grid(res.model, 64, "cpu")
-    finally:
-        torch.set_num_threads(old)
+    res = fit(method, samples, method.training_targets(ExactFields(V, F), samples), budget, seed=fit_seed, device="cpu")
+    grid, _ = method.neural_grid(res.model, 64, "cpu")
     ex = method.extract(grid, 64)
-    cover, _ = edge_coverage(ex.vertices, ex.faces, corners, edges)
+    cover, on_edges = edge_coverage(ex.vertices, ex.faces, corners, edges)
+    cd = evaluate(V, F, ex.vertices, ex.faces, n_points=50_000, seed=0)["cd"]
+    measured(worst_cover=cover.min(), mean_cover=cover.mean(), edges_80=(cover >= 0.8).sum(), on_edges=on_edges, cd=cd)
     assert cover.min() >= 0.8
-    assert evaluate(V, F, ex.vertices, ex.faces, n_points=50_000, seed=0)["cd"] < 0.012
+    assert cd < 0.012
 
 
 def _sheet():
@@ -285,21 +283,17 @@ def sphere():
     return V, F, ExactFields(V, F), sample_training_data(V, F, BUDGETS["tiny"].num_samples, np.random.default_rng(0))
 
 
+@pytest.mark.learned
 @pytest.mark.parametrize("name", ["sdf", "bof", "udf", "sals"])
-def test_tiny_neural_fit_on_a_sphere(name, sphere):
+def test_tiny_neural_fit_on_a_sphere(name, sphere, fit_seed, torch_threads, measured):
     V, F, fields, samples = sphere
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        method = get_method(name)
-        targets = method.training_targets(fields, samples)
-        res = fit(method, samples, targets, "tiny", seed=0, device="cpu")
-        grid, info = method.neural_grid(res.model, 32, "cpu")
-        ex = method.extract(grid, 32)
-    finally:
-        torch.set_num_threads(old)
+    method = get_method(name)
+    targets = method.training_targets(fields, samples)
+    res = fit(method, samples, targets, "tiny", seed=fit_seed, device="cpu")
+    grid, info = method.neural_grid(res.model, 32, "cpu")
+    ex = method.extract(grid, 32)
+    r = evaluate(V, F, ex.vertices, ex.faces, n_points=10_000)
+    measured(cd=r["cd"], loss_ratio=res.final_loss / res.losses[:10].mean())
     assert np.isfinite(res.final_loss) and res.final_loss < res.losses[:10].mean()
     assert info["query_fraction"] > 0  # (coarse + fine) / dense evaluations; above 1 when most blocks are near
-    r = evaluate(V, F, ex.vertices, ex.faces, n_points=10_000)
-    print(name, r["cd"], res.final_loss)
     assert r["cd"] < NEURAL_CD_BOUND[name]

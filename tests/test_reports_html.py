@@ -202,6 +202,7 @@ def _chromium(args: list[str], profile: Path) -> subprocess.CompletedProcess:
 
 
 @needs_chromium
+@pytest.mark.slow
 def test_report_in_headless_browser(report, tmp_path):
     paths, out = report
     url = paths["report.html"].resolve().as_uri()

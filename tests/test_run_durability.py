@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import pandas as pd
+import pytest
 
 from tests.fake_methods import PLUGIN
 from tests.kill_run import kill_after_ok_jobs
@@ -23,6 +24,7 @@ def _run(args, cache, **kw):
                           timeout=600, env={**os.environ, "SALSBENCH_CACHE": str(cache)}, **kw)
 
 
+@pytest.mark.slow
 def test_kill9_resume_twice_then_a_changed_flag_is_refused(tmp_path):
     cache = tmp_path / "cache"
     args = ["--methods", "test_sdf", "test_occ", "--mode", "oracle", "--grid", "24", "--eval-points", "5000",

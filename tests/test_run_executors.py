@@ -166,6 +166,7 @@ def test_local_table_has_the_failure_recorded(local_table):
     _check_table(local_table[0])
 
 
+@pytest.mark.slow
 def test_process_executor_gives_the_local_table(mesh_dir, tmp_path, local_table):
     df, wall = _run(mesh_dir, tmp_path / "run", tmp_path / "cache", "--executor", "process", "--workers", "2")
     _check_table(df)
@@ -191,6 +192,7 @@ def ray_instance():
     ray.shutdown()
 
 
+@pytest.mark.slow
 def test_ray_executor_gives_the_local_table(ray_instance, mesh_dir, tmp_path, local_table):
     df, wall = _run(mesh_dir, tmp_path / "run", tmp_path / "cache", "--executor", "ray")
     _check_table(df)

@@ -56,6 +56,7 @@ def test_options_of_the_other_task_are_refused_with_one_line(tmp_path, capsys, a
     assert len(err.splitlines()) == 1 and message in err, err
 
 
+@pytest.mark.slow
 def test_a_learned_method_trains_once_and_later_jobs_and_runs_load_its_network(tmp_path):
     import json
 

@@ -43,6 +43,7 @@ def test_variants_are_the_cross_product_first_key_slowest():
     assert variants({}) == [{}]
 
 
+@pytest.mark.slow
 def test_a_2x2_extraction_sweep_gives_four_rows_with_sweep_columns_fits_once_and_reports_it(fakes, tmp_path):
     out = tmp_path / "run"
     code = main(neural_args(out, tmp_path / "cache", "--sweep", "test_sdf.level=0,0.01", "--sweep", "grid=20,24",
@@ -113,6 +114,7 @@ def test_bad_sweeps_are_one_line_naming_the_key(fakes, tmp_path, capsys, args, m
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_a_sweep_from_a_config_file_is_the_same_run_as_from_the_command_line(fakes, tmp_path):
     out, cache = tmp_path / "run", tmp_path / "cache"
     assert main(neural_args(out, cache, "--sweep", "test_sdf.level=0,0.01", "--no-ceiling")) == 0
@@ -132,6 +134,7 @@ def test_every_shipped_recipe_resolves_against_the_registry(name, tmp_path):
     assert {"normals", "o-threshold", "samples", "grid", "faces", "knn"} <= set(recipe_names())
 
 
+@pytest.mark.slow
 def test_a_killed_sweep_resumes_to_the_uninterrupted_table(tmp_path):
     env = {**os.environ, "SALSBENCH_CACHE": str(tmp_path / "cache")}
     args = ["--methods", "test_sdf", "test_occ", "--mode", "oracle", "--eval-points", "5000", "--limit", "2",
