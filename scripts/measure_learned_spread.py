@@ -6,9 +6,9 @@
 Runs ``pytest -m learned`` once per (float path, thread count), the seeds as parameters of each
 test's ``fit_seed`` (see tests/conftest.py), with ``ATEN_CPU_CAPABILITY`` set per path. Every test
 logs its measured values before asserting, so failures are data here, not errors. Writes
-``<out>/learned.jsonl`` (one row per test, case, seed, path, threads) and ``<out>/learned.md`` (per
-test value: min, median and max over everything, and the range on each path), the tables that the
-learned tests' bounds cite.
+``<out>/raw-<path>-<threads>t.jsonl`` per run, then ``<out>/learned.jsonl`` (every row of every run in
+``<out>``, earlier invocations' included) and ``<out>/learned.md`` (per test value: min, median and
+max over everything, and the range on each path), the tables that the learned tests' bounds cite.
 """
 
 from __future__ import annotations
@@ -51,6 +51,24 @@ def summarise(rows: list[dict]):
     return table.join(per_path).reset_index()
 
 
+def header(rows: list[dict]) -> str:
+    """Where and how the table was measured."""
+    import datetime
+    import platform
+
+    import torch
+
+    cpu = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
+                if line.startswith("model name")), platform.processor()) if Path("/proc/cpuinfo").is_file() \
+        else platform.processor()
+    runs = sorted({f"{r['float_path']}/{r['threads']}t ({r['capability']})" for r in rows})
+    seeds = sorted({r["seed"] for r in rows if r.get("seed") is not None})
+    return (f"# What the learned tests reach\n\nMeasured {datetime.date.today()} on {cpu} ({os.cpu_count()} cores), "
+            f"torch {torch.__version__}, by `python scripts/measure_learned_spread.py`: seeds {seeds}, runs "
+            f"(float path / torch threads (kernels)): {', '.join(runs)}. One row per test, case and measured "
+            f"quantity: over every run, then the range on each run.\n\n")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
@@ -71,14 +89,14 @@ def main(argv: list[str] | None = None) -> int:
             codes = pool.map(lambda run: run_learned_tests(*run, args.seeds, logs[run], args.select), batch)
             for run, code in zip(batch, codes):
                 print(f"{run[0]:>8} {run[1]}t: pytest exit {code} (log {logs[run].with_suffix('.log').name})")
-    rows = []
-    for (path, threads), log in logs.items():
-        if log.is_file():
-            rows += [{**json.loads(line), "float_path": path} for line in log.read_text().splitlines()]
+    rows = []  # every run in the folder: earlier invocations' (other paths or threads) too
+    for log in sorted(args.out.glob("raw-*.jsonl")):
+        path = log.stem.split("-")[1]
+        rows += [{**json.loads(line), "float_path": path} for line in log.read_text().splitlines()]
     with open(args.out / "learned.jsonl", "w") as f:
         f.writelines(json.dumps(r) + "\n" for r in rows)
     table = summarise(rows)
-    (args.out / "learned.md").write_text(table.to_markdown(index=False, floatfmt=".4g") + "\n")
+    (args.out / "learned.md").write_text(header(rows) + table.to_markdown(index=False, floatfmt=".4g") + "\n")
     print(table.to_markdown(index=False, floatfmt=".4g"))
     return 0
 
