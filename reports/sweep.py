@@ -48,7 +48,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-from benchmark.run.schema import columns as schema_columns
+from benchmark.schema import columns as schema_columns
 from reports.frames import as_bool, check_results, numeric, without_unscored
 from reports.html import esc, notes_html, plot_html, table_html
 from reports.plots import STYLE, _svg, plot_label

@@ -21,7 +21,7 @@ import pandas as pd
 import pytest
 
 from benchmark.run.cli import EXIT_FAILED_TASKS, EXIT_REFUSED, main
-from benchmark.run.schema import csv_lead
+from benchmark.schema import csv_lead
 from tests.fake_methods import PLUGIN
 
 REPO = Path(__file__).resolve().parents[1]
