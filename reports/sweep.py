@@ -1,4 +1,4 @@
-"""Sweep tables and plots: how the headline metrics move with a swept setting (Issue 13).
+"""Sweep tables and plots: how the headline metrics move with a swept setting.
 
 A sweep run (``run_benchmark.py --sweep KEY=V1,V2,...``, repeatable: the cross product) gives the
 reports ``context["sweep"] = {key: [values in the user's order]}`` and, in every job's row, its
