@@ -1,4 +1,4 @@
-"""Disk cache of the exact grid fields (SPEC section 4: "cache them on disk keyed by (mesh hash, N, kind)").
+"""Disk cache of the exact grid fields, keyed by (mesh hash, N, kind).
 
 A :class:`FieldCache` serves the four oracle grid fields of an :class:`benchmark.fields.ExactFields`
 (tens of seconds each at N = 128) from one folder. The caller chooses the folder: the run layer

@@ -1,4 +1,4 @@
-"""Exact fields of a triangle mesh in the canonical frame (SPEC section 4).
+"""Exact fields of a triangle mesh in the canonical frame.
 
 Everything here is ground truth: training targets for the point and segment fields, and the
 *oracle* fields the extractors read on the grid. Inputs are numpy arrays in the canonical frame
@@ -26,7 +26,7 @@ Grid conventions (benchmark.grid)
 * Grid edges (:meth:`ExactFields.grid_edges`): no ray per edge. For every axis the 3 N^2 grid lines
   are intersected with all triangles at once by rasterising each triangle's projection onto the
   plane across the axis (:func:`benchmark.raster.grid_line_hits`: exact float64 2D edge functions,
-  the "equivalent vectorised segment-triangle test" of SPEC section 4). Convention: triangles are *closed* (a line through a triangle's edge or
+  a vectorised segment-triangle test). Convention: triangles are *closed* (a line through a triangle's edge or
   vertex hits it); a line parallel to a triangle's plane (zero projected area) never hits it, so a
   line lying inside a face only hits the faces it crosses. A hit exactly at a grid point (within
   1e-9 h) belongs to both edges sharing that point (tau = 1 on the lower edge, tau = 0 on the upper).
@@ -43,7 +43,7 @@ Grid conventions (benchmark.grid)
   tie rule (their SDF is 0 anyway).
 * Narrow band: grid distances are exact (libigl) where d < band and *clamped* to ``band`` elsewhere
   (the true distance there is >= band): udf = band, sdf = +-band, gradient = 0. Default band
-  max(0.1, 2h): 0.1 is the SDF/UDF loss clamp of SPEC section 5 and MeshUDF reads gradients only where
+  max(0.1, 2h): 0.1 is the SDF/UDF loss clamp and MeshUDF reads gradients only where
   d < 2h. Signs are exact everywhere (they do not use the band).
 """
 

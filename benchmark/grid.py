@@ -1,4 +1,4 @@
-"""The regular grid every method is extracted on (SPEC section 1).
+"""The regular grid every method is extracted on.
 
 Frame: the canonical frame, the cube [-1, 1]^3. ``N`` points per axis, spacing ``h = 2 / (N - 1)``.
 

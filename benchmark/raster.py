@@ -1,7 +1,6 @@
 """Exact line-triangle rasterisation: every grid line (or -x ray) against every triangle, in float64.
 
-The core of the exact grid fields of :mod:`benchmark.fields` (SPEC section 4, "an equivalent
-vectorised segment-triangle test"): instead of one ray per grid edge, each triangle is projected
+The core of the exact grid fields of :mod:`benchmark.fields`: instead of one ray per grid edge, each triangle is projected
 onto the plane across an axis and tested against the lines through the grid points inside its
 projected bounding box, all (triangle, line) pairs of a batch at once.
 

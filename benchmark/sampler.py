@@ -1,4 +1,4 @@
-"""The shared training sampler (SPEC section 3): one set of samples that every method draws from.
+"""The shared training sampler: one set of samples that every method draws from.
 
 Centres ``c`` are drawn in five groups (fractions of the total count M, noise sigma in canonical
 units):
@@ -29,7 +29,7 @@ import numpy as np
 
 from benchmark.surface import sample_surface
 
-#: (name, fraction of M, centre kind, sigma) for the five groups (SPEC section 3, *paper*).
+#: (name, fraction of M, centre kind, sigma) for the five groups of the paper.
 GROUPS: tuple[tuple[str, float, str, float], ...] = (
     ("surface-1", 0.50, "surface", 0.005),
     ("surface-2", 0.30, "surface", 0.01),
@@ -79,7 +79,7 @@ def sample_training_data(vertices: np.ndarray, faces: np.ndarray, total: int, rn
     Parameters
     ----------
     vertices : (V, 3) array_like
-        Mesh vertices, canonical frame (SPEC section 1).
+        Mesh vertices, canonical frame.
     faces : (F, 3) array_like of int
         Triangles.
     total : int

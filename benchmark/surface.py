@@ -1,8 +1,8 @@
 """Area-uniform samples on a triangle mesh and its scale-free area: the project's one owner of
 "a point on the mesh" and of "this mesh has no area".
 
-The metrics (:mod:`benchmark.metrics`, SPEC section 7) and the training sampler
-(:mod:`benchmark.sampler`, SPEC section 3) both draw their surface points with
+The metrics (:mod:`benchmark.metrics`) and the training sampler
+(:mod:`benchmark.sampler`) both draw their surface points with
 :func:`sample_surface`; mesh validation (:mod:`datasets.io`) and the metrics' empty-prediction
 test both call a mesh degenerate by :func:`relative_area` and :data:`MIN_RELATIVE_AREA`.
 

@@ -1,4 +1,4 @@
-"""salsbench datasets: loading meshes into the canonical frame and the dataset registry (SPEC 1-2).
+"""salsbench datasets: loading meshes into the canonical frame and the dataset registry.
 
     from datasets import get_dataset
     for name in (ds := get_dataset("abc", data_dir="../shared/data/abc")).names():

@@ -1,5 +1,5 @@
 """Directory datasets: any folder of meshes, ABC meshes filtered by a list, and non-manifold ABC
-pairs (SPEC section 2).
+pairs.
 
 Folders are scanned recursively by default (``recursive=True``; the raw ABC layout keeps each model
 in its own sub-folder), skipping hidden files and folders; files are sorted by their path relative

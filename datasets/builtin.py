@@ -1,4 +1,4 @@
-"""The built-in CAD-like shapes: the default dataset, generated on the fly (SPEC section 2).
+"""The built-in CAD-like shapes: the default dataset, generated on the fly.
 
 Each part is a boolean combination of boxes, cylinders, cones, wedges (extruded polygons), chamfers
 (45-degree diamond prisms subtracted along an edge), holes, slots and thin walls, built with
@@ -345,7 +345,7 @@ def _random_rotation(rng: np.random.Generator, min_deg: float, max_deg: float) -
 
 
 def canonical_part(part: Manifold, refine_length: float | None = None) -> Manifold:
-    """The part moved to the canonical frame (SPEC section 1) and, when ``refine_length`` is given,
+    """The part moved to the canonical frame and, when ``refine_length`` is given,
     refined so that no edge is longer than it (flat faces stay flat: new vertices lie on the
     original triangles)."""
     vertices, _ = manifold_arrays(part)

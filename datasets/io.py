@@ -1,4 +1,4 @@
-"""Mesh loading, validation and the canonical normalisation (SPEC sections 1-2).
+"""Mesh loading, validation and the canonical normalisation.
 
 Every shape in salsbench is a :class:`Shape`: triangle arrays in the canonical frame plus the
 transform that maps them back to the file's frame. Loading never merges vertices silently (a CAD
@@ -28,7 +28,7 @@ from datasets.formats import MeshError, check_ply_header, decode_text, parse_obj
 #: File extensions the loaders accept.
 MESH_EXTENSIONS = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
 
-#: Largest side of the bounding box in the canonical frame (SPEC section 1).
+#: Largest side of the bounding box in the canonical frame.
 CANONICAL_SIZE = 1.99
 #: :attr:`Shape.kind` of a point cloud given without a GT mesh.
 NO_GT = "no GT"
@@ -117,7 +117,7 @@ def mesh_hash(vertices: np.ndarray, faces: np.ndarray) -> str:
 
 
 def canonical_transform(vertices: np.ndarray) -> Normalization:
-    """The SPEC section 1 transform: centre the bounding box, scale its largest side to 1.99."""
+    """The canonical transform: centre the bounding box, scale its largest side to 1.99."""
     vertices = np.asarray(vertices, dtype=np.float64)
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
     with np.errstate(over="ignore"):  # a box beyond float64 is refused below, in one line

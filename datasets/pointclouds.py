@@ -5,7 +5,7 @@ Files: ``<name>.xyz`` (text, one point per line, the first 3 columns; more colum
 ignored, as the methods get no normals), ``<name>.npy`` ((P, >= 3) float array) or ``<name>.ply``
 (vertices only: a PLY with faces is a mesh, not a cloud). The GT is the mesh file
 ``<name>.gt.<ext>`` (any mesh extension of :data:`datasets.io.MESH_EXTENSIONS`) in the same folder.
-With a GT the canonical frame is the GT's (SPEC section 1) and the cloud moves with the same
+With a GT the canonical frame is the GT's and the cloud moves with the same
 transform; the reconstruction is scored against it. A cloud without a GT (a scan) is a shape with
 no faces (:attr:`datasets.io.Shape.has_gt` False, kind :data:`datasets.io.NO_GT`) in the canonical
 frame of its own points: every method reconstructs it, the mesh and its validity counts are

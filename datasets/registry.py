@@ -1,4 +1,4 @@
-"""The dataset registry and the :class:`Dataset` protocol (SPEC section 2).
+"""The dataset registry and the :class:`Dataset` protocol.
 
 A dataset is a named, ordered collection of shapes that loads lazily:
 

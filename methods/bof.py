@@ -1,4 +1,4 @@
-"""``bof``: neural binary occupancy field + marching cubes at probability 0.5 (SPEC section 5).
+"""``bof``: neural binary occupancy field + marching cubes at probability 0.5.
 
 Network x (3) -> occupancy logit l(x); probability sigmoid(l). Target: ``ExactFields.occupancy``
 (|winding number| > 0.5), as 0/1. Loss: binary cross-entropy with logits.

@@ -1,11 +1,11 @@
-"""E-DC: the edge-based dual contouring of SALS (SPEC section 6), as pure array functions.
+"""E-DC: the edge-based dual contouring of SALS, as pure array functions.
 
 Input: the intersected grid edges of the grid of :mod:`benchmark.grid` (flat edge ids, flat edge
 order), their hit parameters ``s`` and (optionally) unit normals. Output: an unoriented triangle
 mesh in the canonical frame [-1, 1]^3. No signs and no orientation are used, so open and
 non-manifold surfaces come out naturally.
 
-Steps (numbers as in SPEC section 6; step 1, the network query ``o_hat > 0.1``, and step 3, the
+Steps (numbered as in the paper's E-DC; step 1, the network query ``o_hat > 0.1``, and step 3, the
 normals by autograd, belong to the caller):
 
 2. Edge points. Edge ``e`` along axis ``a`` starting at grid index ``(i, j, k)`` has lower endpoint
@@ -340,7 +340,7 @@ def edc_cell_vertices(N: int, edge_ids: np.ndarray, s: np.ndarray, normals: np.n
 
 def edc_extract(N: int, edge_ids: np.ndarray, s: np.ndarray, normals: np.ndarray | None = None, *,
                 qef_cutoff: float = DEFAULT_QEF_CUTOFF, clamp_to_cell: bool = False, faces: str = "fan4"):
-    """E-DC mesh from the intersected edges of the N^3 grid (SPEC section 6, steps 2, 4, 5).
+    """E-DC mesh from the intersected edges of the N^3 grid (steps 2, 4 and 5).
 
     Parameters
     ----------
@@ -355,7 +355,7 @@ def edc_extract(N: int, edge_ids: np.ndarray, s: np.ndarray, normals: np.ndarray
         ``'quad2'`` (2 triangles over the 4 cell vertices, split along the diagonal of ring
         positions 0-2) or ``'fan4-adaptive'`` (below).
 
-    Face rules and thin walls (issue 13). Where a cell holds two sheets closer than about one cell
+    Face rules and thin walls. Where a cell holds two sheets closer than about one cell
     (a thin wall: its edges carry normals +n and -n from both sides), the QEF has rank 1 and puts
     the cell's vertex between the sheets, so the 4 vertices around an edge are coplanar on a middle
     plane while the edge point lies on one sheet, 0.1-0.4 h off that plane. The ``'fan4'`` fan

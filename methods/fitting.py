@@ -1,4 +1,4 @@
-"""One fitting loop for every method (SPEC section 5), with budgets as data.
+"""One fitting loop for every method, with budgets as data.
 
 The loop: network ``methods.network.make_network(method.input_dim, method.output_dim,
 **budget.network_config())`` (the budget's backbone: ``'mlp'`` or ``'grid'``); AdamW with one
@@ -44,7 +44,7 @@ class FittingError(RuntimeError):
 
 @dataclass(frozen=True)
 class Budget:
-    """A fitting budget. ``depth`` counts linear layers; ``num_samples`` is M (SPEC section 3).
+    """A fitting budget. ``depth`` counts linear layers; ``num_samples`` is M.
 
     ``backbone``: ``'mlp'`` (the MLP is ``depth`` x ``width``) or ``'grid'`` (a feature grid of
     ``grid_resolutions`` points per axis per level and ``grid_channels`` features, then a
@@ -103,12 +103,12 @@ class Budget:
         return config
 
 
-#: *paper* = SPEC section 5 (GPU scale: tens of hours on 2 CPU cores). *quick* = the CPU budget of
+#: *paper* = the paper's network and schedule (GPU scale: tens of hours on 2 CPU cores). *quick* = the CPU budget of
 #: the default benchmark run (one fit <= ~60 s on 2 cores; a smaller network, same for every
 #: method). *tiny* = tests and CI regression (a few seconds). quick keeps the paper's lr 1e-3: at 3e-3
 #: the Softplus(beta=100) SDF network collapsed to a constant on an open shape (loss 0.0134 -> 0.0139,
 #: no surface), while 1e-3 fits it (-> 0.0033). tiny starts at 3e-3 (200 steps are too few otherwise).
-#: *cpu* = the grid backbone at the size of the feasibility probe of issue 9 (levels 16/32/64 x 4
+#: *cpu* = the grid backbone at CPU size (levels 16/32/64 x 4
 #: channels, raw xyz concatenated, 3-layer 64-wide Softplus head, Adam 1e-2, batch 4,096, 1M
 #: samples), with both learning rates decaying by cosine to 1/100 at the last step (a constant lr
 #: hurt SALS in that probe); the grid trains with torch's fused AdamW: steps measured 12-27 ms each on

@@ -1,11 +1,11 @@
-"""The K-NN local networks of point-cloud reconstruction (SPEC section 10), shared by the learned methods.
+"""The K-NN local networks of point-cloud reconstruction, shared by the learned methods.
 
-Issue 12's reconstruction task trains each learned method *once* across many shapes and then
+The reconstruction task trains each learned method *once* across many shapes and then
 reconstructs a surface from a raw point cloud (no normals). The learned methods share one encoder
 design, one training set and one training budget (:data:`KNN_BUDGETS`), so a comparison between them
 is about the representation, not the network:
 
-* ``sals-knn``: a segment (u, v) -> two logits (o, s)  (:class:`SegmentKNNNetwork`, SPEC section 10);
+* ``sals-knn``: a segment (u, v) -> two logits (o, s)  (:class:`SegmentKNNNetwork`);
 * ``udf-knn``: a point x -> its unsigned distance        (:class:`PointKNNNetwork`, ``out_dim = 1``);
 * ``occ-knn``: a point x -> its occupancy logit          (:class:`PointKNNNetwork`, ``out_dim = 1``).
 
@@ -36,7 +36,7 @@ constant: the norm rescales it.
 
 Segments are ordered
 --------------------
-:class:`SegmentKNNNetwork` encodes u and v with *separate* encoders (their own weights, SPEC: "each
+:class:`SegmentKNNNetwork` encodes u and v with *separate* encoders (their own weights, the paper: "each
 goes through its own point-wise MLP") and concatenates ``[enc_u(u), enc_v(v)]``, so it is a function of
 the ordered triple (u, v, neighbours): swapping u and v gives a different input and, in general, a
 different output. The exact field is symmetric in the sense ``o(v, u) = o(u, v)`` and
@@ -112,7 +112,7 @@ def knn_neighbourhoods(points: np.ndarray, queries: np.ndarray, k: int) -> np.nd
 
 
 def segment_neighbourhoods(points: np.ndarray, segments: np.ndarray, k: int) -> np.ndarray:
-    """The ``k`` nearest input points of each segment's midpoint m = (u + v) / 2 (SPEC section 10).
+    """The ``k`` nearest input points of each segment's midpoint m = (u + v) / 2.
 
     ``segments``: (S, 2, 3) or (S, 6) endpoints ``[u, v]``. Returns (S, k) int64 indices into
     ``points`` (see :func:`knn_neighbourhoods`).
@@ -146,7 +146,7 @@ def _check_sizes(width: int, depth: int, what: str) -> tuple[int, int]:
 
 
 class LocalEncoder(nn.Module):
-    """The point-wise MLP + max-pool encoder of one anchor and its K neighbours (SPEC section 10).
+    """The point-wise MLP + max-pool encoder of one anchor and its K neighbours.
 
     Layers: ``Linear(4, width)``, then ``depth`` x ``Linear(width, width)``, each followed by
     ``BatchNorm1d`` (over the B K flattened point features) and LeakyReLU(0.2); then
@@ -289,7 +289,7 @@ class KNNBudget:
 
     The training set (:mod:`methods.knn_training`): ``training_shapes`` built-in parts (plus any
     extra mesh folders the caller adds); per training shape a pool of ``pool_samples`` labelled
-    samples (the shared sampler, SPEC section 3, labelled by the exact fields) and a pool of
+    samples (the shared sampler, labelled by the exact fields) and a pool of
     ``pool_points`` surface points, from which each item draws its ``samples_per_item`` samples
     (with replacement) and its ``points_per_item`` input points (without replacement, so
     ``pool_points >= points_per_item``).
@@ -336,7 +336,7 @@ class KNNBudget:
         return asdict(self)
 
 
-#: *paper* = SPEC section 10 (K = 20; encoders 4 -> 256, 4 x 256, 256 -> 256; head 512 -> 256,
+#: *paper* = the paper's K-NN network (K = 20; encoders 4 -> 256, 4 x 256, 256 -> 256; head 512 -> 256,
 #: 4 x 256, 256 -> out; batches of 4 shapes x 5,120 samples, each item with 40k input points;
 #: AdamW 1e-3 constant, 10k steps; 100 training shapes, 1M labelled samples and 1M surface points
 #: each; GPU scale).
@@ -344,7 +344,7 @@ class KNNBudget:
 #: cloud size as the paper (the local encoder sees the neighbourhood density it is tested at), a
 #: network of width 64 with 2 hidden layers in each encoder and in the head, batches of 4 shapes x
 #: 1,024 samples. Measured: one training step of the segment network at these sizes (forward, loss of
-#: SPEC section 5, backward, AdamW) took 0.47-0.63 s on one thread (1.6-2.1 steps/s, on a 2-core
+#: backward, AdamW) took 0.47-0.63 s on one thread (1.6-2.1 steps/s, on a 2-core
 #: machine shared with a benchmark run), plus 0.04 s for the batch's 4 KD-tree searches (40k points,
 #: 1,024 midpoints each): 1,500 steps are 12.5-17 min; the point networks (one encoder) are cheaper.
 #: Its training set: 24 built-in parts (8 per variant), pools of 200k labelled samples and 200k

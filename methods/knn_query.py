@@ -1,4 +1,4 @@
-"""Grid queries of the K-NN reconstruction networks (SPEC section 10): which grid points and edges
+"""Grid queries of the K-NN reconstruction networks: which grid points and edges
 lie near the input cloud, and the network on them with the neighbourhoods of the cloud.
 
 Only queries near the cloud are evaluated: grid points (or edge midpoints) within ``radius`` of

@@ -1,4 +1,4 @@
-"""Training a learned reconstruction method once across many shapes (SPEC section 10, issue 12).
+"""Training a learned reconstruction method once across many shapes.
 
 A learned point-cloud method (:class:`methods.base.LearnedPointCloudMethod`: ``sals-knn``,
 ``udf-knn``, ``occ-knn``) trains one K-NN local network (:mod:`methods.knn_network`) on a training

@@ -1,4 +1,4 @@
-"""Marching cubes on a grid field, for the signed representations (SPEC section 5: `sdf`, `bof`).
+"""Marching cubes on a grid field, for the signed representations (`sdf`, `bof`).
 
 The field is sampled on the grid of :mod:`benchmark.grid` (``(N, N, N)``, ``'ij'`` indexing, point
 ``[i, j, k]`` at ``(-1 + i h, -1 + j h, -1 + k h)``). The mesh comes from scikit-image's

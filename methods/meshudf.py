@@ -1,4 +1,4 @@
-"""MeshUDF-style extraction of an unsigned distance field (SPEC section 5, `udf`; Guillard et al. 2022).
+"""MeshUDF-style extraction of an unsigned distance field (`udf`; Guillard et al. 2022).
 
 Input: the UDF ``d`` and its unit gradient ``g`` on the grid of :mod:`benchmark.grid` (``(N, N, N)``
 and ``(N, N, N, 3)``, ``'ij'`` indexing, spacing ``h = 2 / (N - 1)``). Output: an unoriented
@@ -6,7 +6,7 @@ triangle mesh in the canonical frame [-1, 1]^3 (it may have small holes).
 
 1. Candidate cubes (grid cells): mean corner ``d < 1.05 h`` and max corner ``d <= 1.74 h``.
 2. Pseudo-signs per cube from gradient agreement. The anchor is the corner with the largest ``d``
-   (its gradient is the most reliable) and gets +. ``sign_rule='anchor'`` (SPEC's simple version):
+   (its gradient is the most reliable) and gets +. ``sign_rule='anchor'`` (the simple version):
    a corner whose gradient points the same way as the anchor's (``g_i . g_A >= 0``) gets +, the
    others -. ``sign_rule='hybrid'`` (default): the same where the gradients clearly agree or
    disagree (``|g_i . g_A| > 0.5``); where they are nearly orthogonal (the two faces of a sharp
@@ -149,7 +149,7 @@ def meshudf_extract(udf: np.ndarray, grad: np.ndarray, *, udf_at: Callable[[np.n
     mean_factor, max_factor : candidate cubes have mean corner d < mean_factor h and max corner
         d <= max_factor h (1.05, 1.74).
     face_factor : faces whose largest vertex UDF is >= face_factor h are removed (1/6).
-    sign_rule : ``'hybrid'`` (default) or ``'anchor'`` (SPEC's simple rule); see module docstring.
+    sign_rule : ``'hybrid'`` (default) or ``'anchor'`` (the simple rule); see module docstring.
 
     Returns
     -------

@@ -1,4 +1,4 @@
-"""The networks every method fits: the MLP of SPEC section 5 and a feature-grid backbone.
+"""The networks every method fits: the paper's MLP and a feature-grid backbone.
 
 Backbones (:data:`BACKBONES`, chosen by the budget, :mod:`methods.fitting`):
 
@@ -100,7 +100,7 @@ class MLP(nn.Module):
     Initialisation: torch's default for every layer, except the output layer, whose weights are
     scaled by ``OUTPUT_INIT_SCALE`` (0.01) and bias zeroed, so every method starts from outputs ~0
     (SDF/UDF 0 inside their +-0.1 loss clamps, where a clamped prediction has a gradient; occupancy
-    and SALS probabilities 0.5). SPEC section 5 does not fix an initialisation.
+    and SALS probabilities 0.5). The paper does not fix an initialisation.
     """
 
     def __init__(self, in_dim: int, out_dim: int, depth: int = 9, width: int = 512, beta: float = 100.0,
@@ -316,7 +316,7 @@ def endpoint_split(model: nn.Module) -> EndpointSplit | None:
 def make_network(in_dim: int, out_dim: int, depth: int = 9, width: int = 512, beta: float = 100.0,
                  activation: str = "softplus", backbone: str = "mlp",
                  grid_resolutions: Sequence[int] | None = None, grid_channels: int | None = None) -> nn.Module:
-    """The network a budget names (defaults = *paper*: the 9 x 512 Softplus(100) MLP of SPEC section 5).
+    """The network a budget names (defaults = *paper*: the paper's 9 x 512 Softplus(100) MLP).
 
     Parameters
     ----------

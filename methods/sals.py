@@ -1,4 +1,4 @@
-"""``sals``: neural line segment field (SALS) + E-DC (SPEC sections 5-6).
+"""``sals``: neural line segment field (SALS) + E-DC.
 
 Network (u, v) (6) -> two logits; o_hat = sigmoid(out_0) (the segment hits the surface), s_hat =
 sigmoid(out_1) (hit point s u + (1 - s) v). Targets: ``ExactFields.segments(u, v)`` on the shared
@@ -40,7 +40,7 @@ from methods.base import Extraction, Method, register_method
 from methods.params import Param
 from methods import query
 
-#: Weight of the s term (SPEC section 5).
+#: Weight of the s term.
 S_WEIGHT = 10.0
 #: Default length of the optional grid-edge-like training segments: a 128^3 grid edge, 2 / 127.
 EDGE_LENGTH = 2.0 / 127.0
@@ -58,7 +58,7 @@ def segment_targets(fields, segments: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def segment_loss(prediction, targets):
-    """``10 * mean_{o = 1} |sigmoid(s logit) - s| + BCE(o logit, o)`` (SPEC section 5)."""
+    """``10 * mean_{o = 1} |sigmoid(s logit) - s| + BCE(o logit, o)``."""
     o = targets["o"]
     bce = F.binary_cross_entropy_with_logits(prediction[:, 0], o)
     s_err = (torch.sigmoid(prediction[:, 1]) - targets["s"]).abs()

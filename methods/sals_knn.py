@@ -1,4 +1,4 @@
-"""``sals-knn``: the SALS K-NN network of point-cloud reconstruction (SPEC section 10) + E-DC.
+"""``sals-knn``: the SALS K-NN network of point-cloud reconstruction + E-DC.
 
 A segment (u, v) and the K nearest input points of its midpoint go through
 :class:`methods.knn_network.SegmentKNNNetwork` to two logits (o, s), trained once across many shapes

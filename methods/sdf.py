@@ -1,4 +1,4 @@
-"""``sdf``: neural signed distance field + marching cubes at level 0 (SPEC section 5).
+"""``sdf``: neural signed distance field + marching cubes at level 0.
 
 Network x (3) -> f(x), the signed distance (negative inside). Target: ``ExactFields.sdf`` (UDF
 signed by the winding number; on open meshes the |w| = 0.5 membranes are kept: the expected
@@ -19,7 +19,7 @@ from methods.marching_cubes import marching_cubes_grid
 from methods.params import Param
 from methods import query
 
-#: Loss clamp of the signed distance (SPEC section 5), canonical units.
+#: Loss clamp of the signed distance, canonical units.
 CLAMP = 0.1
 
 

@@ -1,4 +1,4 @@
-"""``udf``: neural unsigned distance field + MeshUDF-style extraction (SPEC section 5).
+"""``udf``: neural unsigned distance field + MeshUDF-style extraction.
 
 Network x (3) -> f(x), the unsigned distance (raw output; the grid and ``udf_at`` read max(f, 0)).
 Targets: ``ExactFields.udf(x, return_grad=True)``: d and the exact unit gradient g = (x - c)/|x - c|.
@@ -29,7 +29,7 @@ from methods.base import Extraction, Method, register_method
 from methods.params import Param
 from methods import query
 
-#: Loss clamp of the distance (SPEC section 5), canonical units.
+#: Loss clamp of the distance, canonical units.
 CLAMP = 0.1
 #: Weight of the gradient-direction term.
 GRAD_WEIGHT = 0.1

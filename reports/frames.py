@@ -1,11 +1,11 @@
 """The input contract of the reports: the results and floor frames, checked once.
 
 ``results`` has one row per (shape, method, seed) job with the columns of
-:mod:`benchmark.run.schema` (``shape, method, seed, status ('ok'|'failed'), error``, raw metric
+:mod:`benchmark.schema` (``shape, method, seed, status ('ok'|'failed'), error``, raw metric
 columns ``cd, nc, f1_<tau>, ecd, ef1``, the flags ``empty_prediction`` and ``ecd_flag``, the
 validity columns and wall-clock seconds in columns ending in ``_s``) plus any extra metric or timing
 columns a preset or a method adds. ``floor`` has one row per shape with the same metric columns:
-the GT against an independent resample of itself (SPEC section 7). Metric values are raw: tables
+the GT against an independent resample of itself. Metric values are raw: tables
 apply the preset's multipliers. Rows with ``scored`` 0 are shapes without a GT (a point cloud given
 alone): their meshes and validity counts are reported, never their (absent) metrics.
 """

@@ -6,7 +6,7 @@ Why a rasteriser of our own: a report renders (#shapes x (1 + 2 #methods)) thumb
 100k faces at 256 x 256 (2x supersampled), is deterministic, and runs on any bare CI machine.
 
 Camera: orthographic, looking at the origin from (azimuth, elevation) degrees with +y up in the
-canonical frame ([-1, 1]^3, SPEC section 1). The framing is fixed by a bounding box (``bounds``), so
+canonical frame ([-1, 1]^3). The framing is fixed by a bounding box (``bounds``), so
 renders of the GT and of every method of one shape line up when they are given the GT's box.
 
 Shading: flat (one normal per face), two-sided: intensity = ambient + sum_k kd_k |n . l_k| + specular

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from benchmark.run.schema import columns as schema_columns
+from benchmark.schema import columns as schema_columns
 from reports.frames import as_bool, check_floor, check_results, numeric, ok_jobs, one_line, unscored_jobs, without_unscored
 from reports.protocol import check_context, headline_metrics, protocol_caption, report_title
 from reports.statistics import AGGREGATION, Statistics, method_statistics, statistic_table, statistics_frame
@@ -70,7 +70,7 @@ def shape_order(results: pd.DataFrame, floor: pd.DataFrame | None, preferred) ->
 def validity_table(results: pd.DataFrame, floor: pd.DataFrame | None, methods: list[str], caption: str) -> Table:
     """Mesh validity of the predictions per method, mean over successful jobs (GT row from the floor).
 
-    Columns are the result schema's validity columns present (``benchmark.run.schema``); a column
+    Columns are the result schema's validity columns present (``benchmark.schema``); a column
     whose label ends in '%' is a flag, shown as the percentage of jobs where it holds.
     """
     present = [c for c in schema_columns("validity") if c.name in results.columns]

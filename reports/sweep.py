@@ -1,4 +1,4 @@
-"""Sweep tables and plots: how the headline metrics move with a swept setting (Issue 13).
+"""Sweep tables and plots: how the headline metrics move with a swept setting.
 
 A sweep run (``run_benchmark.py --sweep KEY=V1,V2,...``, repeatable: the cross product) gives the
 reports ``context["sweep"] = {key: [values in the user's order]}`` and, in every job's row, its
@@ -48,7 +48,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-from benchmark.run.schema import columns as schema_columns
+from benchmark.schema import columns as schema_columns
 from reports.frames import as_bool, check_results, numeric, without_unscored
 from reports.html import esc, notes_html, plot_html, table_html
 from reports.plots import STYLE, _svg, plot_label

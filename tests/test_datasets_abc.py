@@ -1,4 +1,4 @@
-"""datasets/abc.py and the registry: folders of meshes, ABC lists, non-manifold pairs (SPEC section 2)."""
+"""datasets/abc.py and the registry: folders of meshes, ABC lists, non-manifold pairs."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""datasets/builtin.py: the generated CAD-like shapes (SPEC section 2)."""
+"""datasets/builtin.py: the generated CAD-like shapes."""
 
 from __future__ import annotations
 

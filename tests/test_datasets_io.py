@@ -1,4 +1,4 @@
-"""datasets/io.py: reading, validation and the canonical frame (SPEC sections 1-2)."""
+"""datasets/io.py: reading, validation and the canonical frame."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""E-DC (SPEC section 6) on analytic edge fields: planes, a cube, an open sheet, crossing planes.
+"""E-DC on analytic edge fields: planes, a cube, an open sheet, crossing planes.
 
 The edge fields are built exactly with numpy (no mesh library): an edge along axis a from u to
 v = u + h e_a meets the plane n . x = c at t = (c - n . u) / (n_a h); it is a hit when 0 <= t <= 1

@@ -107,7 +107,7 @@ def test_cube_keeps_its_area():
     assert area(v, f) == pytest.approx(6 * (2 * a) ** 2, rel=0.05)
     assert (edge_use_counts(f) == 1).sum() == 0  # closed
     assert np.abs(cube_distance(v, a)[0]).max() < H / 6
-    # SPEC's simple anchor rule cuts holes along the sharp edges
+    # the simple anchor rule cuts holes along the sharp edges
     v2, f2, _ = meshudf_extract(d, g, sign_rule="anchor")
     assert (edge_use_counts(f2) == 1).sum() > 0
     assert area(v2, f2) < area(v, f)

@@ -1,4 +1,4 @@
-"""Tests of benchmark.metrics (SPEC section 7) on shapes whose answers can be worked out by hand:
+"""Tests of benchmark.metrics on shapes whose answers can be worked out by hand:
 presets, the distance formulas, evaluate/floor on degenerate input, seeds. Sharp-edge points,
 validity and the command line have their own files (tests/test_metrics_*.py)."""
 

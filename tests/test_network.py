@@ -1,4 +1,4 @@
-"""The MLP of SPEC section 5, the clamped Softplus(beta) (same values and derivatives as torch's) and the
+"""The paper's MLP, the clamped Softplus(beta) (same values and derivatives as torch's) and the
 grid backbone (trilinear feature grid shared by a segment's endpoints, derivatives to second order)."""
 
 import pytest

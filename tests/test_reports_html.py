@@ -245,7 +245,7 @@ def test_face_subset_keeps_a_seeded_subset_and_compacts_vertices():
 
 
 # ---------------------------------------------------------------------------------------------
-# Names from the wild: no warnings, escaped, shown in full (issue 11, items 5, 12)
+# Names from the wild: no warnings, escaped, shown in full
 # ---------------------------------------------------------------------------------------------
 
 NAMES = ("Ω-bracket", "部品", "emoji 🔧")

@@ -1,4 +1,4 @@
-"""Confidence intervals and paired tests of the comparison tables (reports.significance, issue 13).
+"""Confidence intervals and paired tests of the comparison tables (reports.significance).
 
 Hand-checkable cases: a constant sample's interval is [c, c]; the interval of a known sample holds its
 mean and is seeded; identical columns give p = 1; 20 shapes shifted the same way give p = 2 / 2^20; a

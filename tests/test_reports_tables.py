@@ -303,7 +303,7 @@ def test_compare_runs_makes_repeated_names_unique():
 
 
 # ---------------------------------------------------------------------------------------------
-# Empty predictions (issue 11, item 5) and hostile names in Markdown (item 14)
+# Empty predictions and hostile names in Markdown
 # ---------------------------------------------------------------------------------------------
 
 

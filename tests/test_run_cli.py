@@ -21,7 +21,7 @@ import pandas as pd
 import pytest
 
 from benchmark.run.cli import EXIT_FAILED_TASKS, EXIT_REFUSED, main
-from benchmark.run.schema import csv_lead
+from benchmark.schema import csv_lead
 from tests.fake_methods import PLUGIN
 
 REPO = Path(__file__).resolve().parents[1]
@@ -50,16 +50,16 @@ def one_error_line(capsys) -> str:
 @pytest.mark.parametrize("args, message", [
     (["--methods", "nope"], "unknown method 'nope'; known methods: test_sdf"),
     (["--grid", "4"], "--grid must be >= 8"),
-    (["--grid", "100000"], "more than this machine's"),                     # issue 11.8: bounded by memory
+    (["--grid", "100000"], "more than this machine's"),                     # bounded by memory
     (["--eval-points", "10"], "--eval-points must be >= 1000"),
     (["--dataset", "meshes", "--data-dir", "/no/such/dir"], "--data-dir /no/such/dir: does not exist"),
     (["--list", "/no/such/list.txt"], "--list /no/such/list.txt: does not exist"),
     (["--dataset", "nosuch"], "unknown dataset 'nosuch'"),
     (["--method-param", "test_sdf.nope=1"], "has no parameter 'nope'"),
     (["--method-param", "bogus"], "METHOD.NAME=VALUE"),
-    (["--method-param", "test_sdf.level=notanumber"], "expected float"),   # issue 11.7
+    (["--method-param", "test_sdf.level=notanumber"], "expected float"),
     (["--method-param", "test_sdf.level=0.5"], "expected float in (-0.1, 0.1)"),
-    (["--seed", "-1"], "--seed values must lie in [0, 2^63)"),             # issue 11.9
+    (["--seed", "-1"], "--seed values must lie in [0, 2^63)"),
     (["--seed", str(2**63)], "--seed values must lie in [0, 2^63)"),
     (["--workers", "0"], "--workers must be >= 1"),
     (["--workers", "2"], "--workers applies to --executor process or ray"),
@@ -79,7 +79,7 @@ def test_bad_options_fail_with_one_line_before_any_work(fakes, tmp_path, capsys,
 @pytest.mark.parametrize("text, ok", [("no", False), ("False", False), ("0", False), ("off", False),
                                       ("YES", True), ("true", True), ("1", True), ("maybe", None)])
 def test_boolean_method_params_parse_as_booleans(tmp_path, capsys, text, ok):
-    """Issue 11.7: sals.normals=False used to be True (any non-empty string)."""
+    """sals.normals=False used to be True (any non-empty string)."""
     from benchmark.run.cli import parse_method_params
 
     if ok is None:
@@ -90,7 +90,7 @@ def test_boolean_method_params_parse_as_booleans(tmp_path, capsys, text, ok):
 
 
 def test_paths_that_cannot_be_written_are_one_line(fakes, tmp_path, capsys):
-    """Issue 11.10: --out under a file, --cache-dir that is a file."""
+    """--out under a file, --cache-dir that is a file."""
     a_file = tmp_path / "file.txt"
     a_file.write_text("x")
     assert main(oracle_args(a_file / "run", tmp_path / "cache")) == EXIT_REFUSED
@@ -102,7 +102,7 @@ def test_paths_that_cannot_be_written_are_one_line(fakes, tmp_path, capsys):
 
 
 def test_unwritable_out_dir_is_one_line(fakes, tmp_path, capsys, monkeypatch):
-    """Issue 11.10: a read-only --out (simulated: the suite may run as root, who can write anywhere)."""
+    """a read-only --out (simulated: the suite may run as root, who can write anywhere)."""
     import errno
 
     real_write = Path.write_bytes
@@ -170,7 +170,7 @@ def test_oracle_run_writes_the_contract(fakes, tmp_path):
 
 
 def test_failing_job_is_recorded_the_run_goes_on_and_the_exit_says_so(fakes, tmp_path, capsys):
-    """Issue 11.6: the last line counts ok and failed jobs and the exit status is 3."""
+    """the last line counts ok and failed jobs and the exit status is 3."""
     out, cache = tmp_path / "run", tmp_path / "cache"
     args = oracle_args(out, cache)
     args[args.index("test_occ")] = "test_broken"
@@ -218,7 +218,7 @@ def test_rerun_skips_finished_jobs_and_retries_failed(fakes, tmp_path):
 
 @pytest.mark.slow
 def test_second_resume_keeps_the_saved_configuration(fakes, tmp_path):
-    """Issue 11.1: after one --resume, the next one used to run the defaults (builtin, neural, all methods)."""
+    """after one --resume, the next one used to run the defaults (builtin, neural, all methods)."""
     out, cache = tmp_path / "run", tmp_path / "cache"
     assert main(oracle_args(out, cache)) == 0
     saved = json.loads((out / "config.json").read_text())["config"]
@@ -230,7 +230,7 @@ def test_second_resume_keeps_the_saved_configuration(fakes, tmp_path):
 
 
 def test_a_different_protocol_is_refused_naming_the_settings(fakes, tmp_path, capsys):
-    """Issue 11.2: --resume --grid 32 on a grid-64 run used to mix both in one table."""
+    """--resume --grid 32 on a grid-64 run used to mix both in one table."""
     out, cache = tmp_path / "run", tmp_path / "cache"
     assert main(oracle_args(out, cache)) == 0
     capsys.readouterr()
@@ -258,7 +258,7 @@ def test_adding_a_method_to_a_run_keeps_its_protocol(fakes, tmp_path):
 
 
 def test_a_locked_run_directory_is_refused_naming_its_holder(fakes, tmp_path, capsys):
-    """Issue 11.3: two runs into one --out used to both write."""
+    """two runs into one --out used to both write."""
     out = tmp_path / "run"
     out.mkdir()
     fd = os.open(out / ".salsbench.lock", os.O_RDWR | os.O_CREAT)

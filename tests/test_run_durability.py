@@ -1,4 +1,4 @@
-"""Durability (issue 11): kill -9 during a run, resume twice, then resume with a changed flag. The
+"""Durability: kill -9 during a run, resume twice, then resume with a changed flag. The
 table equals an uninterrupted run's, finished jobs are never recomputed, the changed flag is refused."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The shared sampler: group sizes, noise scales, shared centres, determinism (SPEC section 3)."""
+"""The shared sampler: group sizes, noise scales, shared centres, determinism."""
 
 import numpy as np
 import pytest

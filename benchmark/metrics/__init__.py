@@ -1,6 +1,6 @@
-"""Surface metrics between a ground-truth and a predicted triangle mesh (SPEC section 7).
+"""Surface metrics between a ground-truth and a predicted triangle mesh.
 
-Protocol (preset ``default``, all lengths in the canonical frame of the GT, SPEC section 1):
+Protocol (preset ``default``, all lengths in the canonical frame of the GT):
 
 * Sample ``n`` points area-uniformly on each mesh (:func:`benchmark.surface.sample_surface`), each
   with the unit normal of the face it came from. GT and prediction use two independent streams spawned from one

@@ -51,7 +51,7 @@ def _format_table(result: dict, preset: MetricPreset, frame_note: str) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
-        prog="python -m benchmark.metrics", description="Score a predicted mesh against a GT mesh (SPEC section 7)."
+        prog="python -m benchmark.metrics", description="Score a predicted mesh against a GT mesh."
     )
     parser.add_argument("gt", help="ground-truth mesh file")
     parser.add_argument("pred", help="predicted mesh file")

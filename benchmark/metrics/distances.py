@@ -1,4 +1,4 @@
-"""Distance metrics between point sets (SPEC section 7): CD, NC, F1 on surface samples and ECD,
+"""Distance metrics between point sets: CD, NC, F1 on surface samples and ECD,
 EF1 on sharp-edge points, each in the form its :class:`~benchmark.metrics.presets.MetricPreset`
 states. Nearest neighbours are exact (pykdtree, k = 1)."""
 

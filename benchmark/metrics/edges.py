@@ -1,4 +1,4 @@
-"""Sharp-edge points of an oriented point set (Neural Dual Contouring's test, SPEC section 7).
+"""Sharp-edge points of an oriented point set (Neural Dual Contouring's test).
 
 A sample ``p`` is an edge point when a sample ``q`` of the same set lies within ``r`` of it
 (``|p - q| <= r``) with ``|n_p . n_q| < 0.2``. :func:`sharp_edge_points` finds them exactly, fast

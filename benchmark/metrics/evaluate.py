@@ -1,4 +1,4 @@
-"""``evaluate``: every SPEC section 7 metric of a predicted mesh against a GT mesh, and ``floor``,
+"""``evaluate``: every metric of a predicted mesh against a GT mesh, and ``floor``,
 the protocol's noise floor (the GT against an independent resample of itself)."""
 
 from __future__ import annotations
@@ -80,7 +80,7 @@ def evaluate(
     seed: Seed = 0,
     n_points: int | None = None,
 ) -> dict:
-    """All SPEC section 7 metrics of a prediction against a GT mesh. Never raises on the prediction.
+    """All the metrics of a prediction against a GT mesh. Never raises on the prediction.
 
     Parameters
     ----------

@@ -1,4 +1,4 @@
-"""Metric presets: each evaluation protocol of SPEC section 7 as data (:class:`MetricPreset`).
+"""Metric presets: each evaluation protocol as data (:class:`MetricPreset`).
 
 ``PRESETS['default']`` is the canonical protocol, ``PRESETS['ndc']`` reproduces Neural Dual
 Contouring's evaluation script. The preset also states what the reports show: its headline
@@ -40,7 +40,7 @@ class MetricPreset:
     ----------
     name : preset name ('default', 'ndc').
     n_points : surface samples per mesh.
-    frame : 'canonical' (inputs are used as given: the GT's canonical frame, SPEC section 1) or
+    frame : 'canonical' (inputs are used as given: the GT's canonical frame) or
         'diag1' (both meshes mapped by ``x -> (x - c) / D``, c and D the GT bounding-box centre and
         diagonal: NDC's frame).
     chamfer : 'l1_half_mean' -> ``1/2 (mean d(g->P) + mean d(p->G))``; 'squared_sum' ->
@@ -137,7 +137,7 @@ class MetricPreset:
         return asdict(self)
 
 
-#: The canonical protocol (SPEC section 7).
+#: The canonical protocol.
 DEFAULT = MetricPreset(
     name="default",
     n_points=1_000_000,

@@ -1,4 +1,4 @@
-"""Mesh validity columns (SPEC section 7): vertex and face counts, boundary and non-manifold
+"""Mesh validity columns: vertex and face counts, boundary and non-manifold
 edges, edge-connected components, watertightness, counted on the faces as given."""
 
 from __future__ import annotations

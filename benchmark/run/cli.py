@@ -21,11 +21,11 @@ from typing import Any, Sequence
 
 from benchmark.run.config import (DEFAULT_PC_POINTS, MIN_EVAL_POINTS, MIN_GRID, MIN_PC_POINTS, MODES, TASKS, ConfigError,
                                   RunConfig, import_plugins)
+from benchmark.run.parsing import EXIT_FAILED_TASKS, EXIT_OK, EXIT_REFUSED, OneLineParser
 from benchmark.run.plan import resolve
 from benchmark.run.records import SchemaMismatch
 from benchmark.run.rundir import RunDirectory, check_writable_dir, saved_config
 
-EXIT_OK, EXIT_REFUSED, EXIT_FAILED_TASKS = 0, 2, 3
 RUNS_ROOT = Path("runs")
 
 #: Command-line destination -> RunConfig field (where the names differ).
@@ -46,15 +46,8 @@ def recipe_path(name: str) -> Path:
     return path
 
 
-class _OneLineParser(argparse.ArgumentParser):
-    """argparse whose errors are one line on stderr (exit status 2)."""
-
-    def error(self, message: str):  # noqa: D401
-        self.exit(EXIT_REFUSED, f"{self.prog}: error: {message}\n")
-
-
 def build_parser() -> argparse.ArgumentParser:
-    p = _OneLineParser(
+    p = OneLineParser(
         prog="run_benchmark.py",
         formatter_class=argparse.RawDescriptionHelpFormatter,
         description=(

@@ -1,6 +1,6 @@
 """From ``results.db`` to the files users read: ``results.csv``, ``floor.csv`` and the reports.
 
-``results.csv`` leads with the schema's contract columns (:func:`benchmark.run.schema.csv_lead`),
+``results.csv`` leads with the schema's contract columns (:func:`benchmark.schema.csv_lead`),
 then every other metric/timing column; rows in table order (shapes in dataset order, methods in
 display order, seeds). Raw units throughout; the reports apply the preset's multipliers.
 """
@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 
 from benchmark.run.records import SWEEP_PREFIX, open_run_db
-from benchmark.run.schema import CSV_EXCLUDED, csv_lead
+from benchmark.schema import CSV_EXCLUDED, csv_lead
 
 
 def _ordered(df: pd.DataFrame, by: list[tuple[str, list]]) -> pd.DataFrame:

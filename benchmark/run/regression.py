@@ -41,7 +41,7 @@ import numpy as np
 import pandas as pd
 
 from benchmark.run.executors import available_cores
-from benchmark.run.schema import columns, regression_columns
+from benchmark.schema import columns, regression_columns
 from methods.base import available_methods
 from methods.device import FLOAT_PATHS, float_path_environment
 

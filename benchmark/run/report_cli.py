@@ -9,11 +9,11 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
+from benchmark.run.parsing import OneLineParser
+
 
 def build_report_parser() -> argparse.ArgumentParser:
-    from benchmark.run.cli import _OneLineParser
-
-    p = _OneLineParser(prog="run_benchmark.py report",
+    p = OneLineParser(prog="run_benchmark.py report",
                        description="Regenerate results.csv, tables and report.html from run directories' "
                                    "results.db; with several runs, put them side by side.")
     p.add_argument("runs", nargs="+", metavar="RUN_DIR", help="run directories (each holds results.db)")

@@ -1,0 +1,105 @@
+"""The import contract of docs/ARCHITECTURE.md, checked over the source: every import statement of
+every project module (also those inside functions), so a lazy import cannot hide an upward arrow.
+
+Layers, lowest first: foundation (``benchmark`` outside ``benchmark.run``, ``datasets``), methods,
+reports, run (``benchmark.run``). A module may import its own layer and the ones below it; and the
+modules import each other without a cycle.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+PACKAGES = ("benchmark", "datasets", "methods", "reports")
+LAYERS = ("foundation", "methods", "reports", "run")
+
+
+def layer(module: str) -> str | None:
+    top = module.split(".")[0]
+    if module == "benchmark.run" or module.startswith("benchmark.run."):
+        return "run"
+    if top in ("benchmark", "datasets"):
+        return "foundation"
+    return top if top in PACKAGES else None
+
+
+def project_modules() -> dict[str, Path]:
+    modules = {}
+    for package in PACKAGES:
+        for path in sorted((REPO / package).rglob("*.py")):
+            parts = path.relative_to(REPO).with_suffix("").parts
+            modules[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    return modules
+
+
+def import_graph(modules: dict[str, Path]) -> dict[str, set[str]]:
+    """{module: project modules it imports} (``from a import b`` counts ``a.b`` when it is a module)."""
+    graph = {}
+    for name, path in modules.items():
+        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        targets = set()
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                targets.update(a.name for a in node.names)
+            elif isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:
+                    parts = package.split(".")
+                    base = ".".join(parts[: len(parts) - node.level + 1] + ([base] if base else []))
+                targets.update(f"{base}.{a.name}" if f"{base}.{a.name}" in modules else base for a in node.names)
+        graph[name] = {t for t in targets if t in modules and t != name}
+    return graph
+
+
+@pytest.fixture(scope="module")
+def graph():
+    return import_graph(project_modules())
+
+
+def test_no_module_imports_a_higher_layer(graph):
+    upward = [f"{a} ({layer(a)}) -> {b} ({layer(b)})" for a, targets in graph.items() for b in sorted(targets)
+              if LAYERS.index(layer(b)) > LAYERS.index(layer(a))]
+    assert not upward, "upward imports:\n" + "\n".join(upward)
+
+
+def test_the_modules_import_each_other_without_a_cycle(graph):
+    # Tarjan's strongly connected components; a component of more than one module is a cycle
+    index, low, stack, on_stack, cycles = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = set()
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.add(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                cycles.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    assert not cycles, "import cycles: " + "; ".join(" <-> ".join(c) for c in cycles)
+
+
+def test_the_checker_sees_lazy_and_relative_imports():
+    modules = project_modules()
+    graph = import_graph(modules)
+    assert layer("benchmark.run.cli") == "run" and layer("benchmark.metrics.edges") == "foundation"
+    assert "methods.base" in graph["benchmark.run.plan"]  # imported inside a function
+    assert any(t.startswith("reports") for t in graph["benchmark.run.export"])
