@@ -181,8 +181,9 @@ def test_same_seed_same_weights_and_loss_curve_and_it_learns(fit_seed, measured)
     for pa, pb in zip(a.model.parameters(), b.model.parameters()):
         assert torch.equal(pa, pb)
     assert not np.array_equal(a.losses, c.losses)
-    # the mean |sdf| of the targets is ~0.26: 60 steps must get clearly below the first loss
-    assert a.final_loss < 0.6 * a.losses[0]
+    # the mean |sdf| of the targets is ~0.26: 60 steps get clearly below the first loss (measured
+    # 0.48-0.57 of it over seeds 0-4 x float paths x 1-2 threads, docs/spread/learned.md)
+    assert a.final_loss < 0.72 * a.losses[0]
     assert a.final_loss == pytest.approx(a.losses[-TOY.log_every:].mean())
 
 
@@ -225,11 +226,12 @@ def test_model_bytes_round_trip():
 
 @pytest.mark.learned
 def test_grid_backbone_fits_a_sphere_sdf_deterministically(fit_seed, measured):
-    """200 steps (~1 s) of the grid backbone on the SDF of the sphere |x| = 0.5: held-out points within 0.1
-    of the surface have a mean error < 0.002 (measured 0.0008; their mean |sdf| is 0.024), and the 32^3
-    marching-cubes mesh of the fitted field lies within 0.01 of the sphere (measured max 0.0042, grid
-    spacing 0.065) with its area within 2% of the exact field's mesh (measured 0.998 of it); the same
-    seed gives the same numbers."""
+    """200 steps (~1 s) of the grid backbone on the SDF of the sphere |x| = 0.5: held-out points within
+    0.1 of the surface have a mean error < 0.002 (their mean |sdf| is 0.024), and the 32^3
+    marching-cubes mesh of the fitted field lies within 0.01 of the sphere (grid spacing 0.065) with
+    its area within 2% of the exact field's mesh; the same seed gives the same numbers. Measured
+    over seeds 0-4 x float paths x 1-2 threads (docs/spread/learned.md): mean error 0.00070-0.00088,
+    farthest vertex 0.0036-0.0064, area 0.9971-0.9989 of the exact mesh's."""
     samples, targets = _near_sphere(GRID_TOY.num_samples, seed=0)
     res = fit(SphereSDF(), samples, targets, GRID_TOY, seed=fit_seed, device="cpu")
     assert isinstance(res.model, GridNetwork)

