@@ -8,10 +8,11 @@ modules import each other without a cycle.
 
 from __future__ import annotations
 
-import ast
 from pathlib import Path
 
 import pytest
+
+from benchmark.run.cache import project_imports
 
 REPO = Path(__file__).resolve().parents[1]
 PACKAGES = ("benchmark", "datasets", "methods", "reports")
@@ -37,22 +38,13 @@ def project_modules() -> dict[str, Path]:
 
 
 def import_graph(modules: dict[str, Path]) -> dict[str, set[str]]:
-    """{module: project modules it imports} (``from a import b`` counts ``a.b`` when it is a module)."""
-    graph = {}
-    for name, path in modules.items():
-        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
-        targets = set()
-        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-            if isinstance(node, ast.Import):
-                targets.update(a.name for a in node.names)
-            elif isinstance(node, ast.ImportFrom):
-                base = node.module or ""
-                if node.level:
-                    parts = package.split(".")
-                    base = ".".join(parts[: len(parts) - node.level + 1] + ([base] if base else []))
-                targets.update(f"{base}.{a.name}" if f"{base}.{a.name}" in modules else base for a in node.names)
-        graph[name] = {t for t in targets if t in modules and t != name}
-    return graph
+    """{module: project modules it imports} (``from a import b`` counts ``a.b`` when it is a module).
+    A module's own parent packages are left out: Python imports them before the module anyway."""
+    def parents(name):
+        parts = name.split(".")
+        return {".".join(parts[:i]) for i in range(1, len(parts) + 1)}
+
+    return {name: project_imports(name, path, PACKAGES) - parents(name) for name, path in modules.items()}
 
 
 @pytest.fixture(scope="module")
@@ -66,15 +58,15 @@ def test_no_module_imports_a_higher_layer(graph):
     assert not upward, "upward imports:\n" + "\n".join(upward)
 
 
-def test_the_modules_import_each_other_without_a_cycle(graph):
-    # Tarjan's strongly connected components; a component of more than one module is a cycle
+def import_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan), each sorted."""
     index, low, stack, on_stack, cycles = {}, {}, [], set(), []
 
     def visit(v):
         index[v] = low[v] = len(index)
         stack.append(v)
         on_stack.add(v)
-        for w in graph[v]:
+        for w in sorted(graph[v]):
             if w not in index:
                 visit(w)
                 low[v] = min(low[v], low[w])
@@ -94,6 +86,11 @@ def test_the_modules_import_each_other_without_a_cycle(graph):
     for v in sorted(graph):
         if v not in index:
             visit(v)
+    return cycles
+
+
+def test_the_modules_import_each_other_without_a_cycle(graph):
+    cycles = import_cycles(graph)
     assert not cycles, "import cycles: " + "; ".join(" <-> ".join(c) for c in cycles)
 
 
@@ -103,3 +100,5 @@ def test_the_checker_sees_lazy_and_relative_imports():
     assert layer("benchmark.run.cli") == "run" and layer("benchmark.metrics.edges") == "foundation"
     assert "methods.base" in graph["benchmark.run.plan"]  # imported inside a function
     assert any(t.startswith("reports") for t in graph["benchmark.run.export"])
+    assert import_cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert import_cycles({"a": {"b"}, "b": set()}) == []

@@ -79,8 +79,9 @@ def _defines(path: Path, attribute: str) -> bool:
     return False
 
 
-def _imports(name: str, path: Path) -> set[str]:
-    """Project modules named by the import statements of one module (relative ones resolved).
+def project_imports(name: str, path: Path, packages: tuple[str, ...] = PROJECT_PACKAGES) -> set[str]:
+    """Modules of ``packages`` named by the import statements of module ``name`` (source ``path``),
+    those inside functions included, relative ones resolved.
 
     ``import a.b`` and the ``a.b`` of ``from a.b import c`` must exist (else ModuleNotFoundError);
     ``a.b.c`` counts when ``c`` is a module rather than an attribute."""
@@ -98,7 +99,7 @@ def _imports(name: str, path: Path) -> set[str]:
                 base = ".".join(parts[: len(parts) - node.level + 1] + ([base] if base else []))
             required.add(base)
             optional.update((base, a.name) for a in node.names)
-    required = {m for m in required if m.split(".")[0] in PROJECT_PACKAGES}
+    required = {m for m in required if m.split(".")[0] in packages}
     for mod in required:
         if not _is_module(mod):
             raise ModuleNotFoundError(f"code digest: '{name}' imports '{mod}', which does not exist")
@@ -139,7 +140,7 @@ def code_digest(*modules: str) -> str:
             continue
         path = _module_file(name)
         seen[name] = path
-        todo.extend(_imports(name, path) - set(seen))
+        todo.extend(project_imports(name, path) - set(seen))
         parent = name.rpartition(".")[0]
         if parent and parent not in seen:
             todo.append(parent)
