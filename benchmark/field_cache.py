@@ -29,8 +29,7 @@ import numpy as np
 from benchmark.fields import FIELDS_VERSION, ExactFields, default_band
 from benchmark.grid import EdgeField, num_edges
 from benchmark.registry import Registry
-from benchmark.storage import CacheStats, CorruptEntry, read_checked, write_checked
-from datasets.io import mesh_hash
+from benchmark.storage import CacheStats, CorruptEntry, mesh_hash, read_checked, write_checked
 
 __all__ = ["FieldCache", "cache_key", "CACHE_KINDS"]
 

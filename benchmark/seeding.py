@@ -13,7 +13,7 @@ One :class:`numpy.random.SeedSequence` per (shape, seed)::
   streams from (child 0: GT samples, child 1: prediction samples), so every prediction of a shape
   and the floor row are scored against the same GT samples.
 
-The shape enters by its content hash (``datasets.io.mesh_hash``), never by its name or position,
+The shape enters by its content hash (``benchmark.storage.mesh_hash``), never by its name or position,
 so results do not depend on the order of shapes, the executor or the process.
 """
 

@@ -9,6 +9,8 @@
   payload``. Reading checks the digest: a flipped byte, a truncated file or a file that is not an
   entry raises :class:`CorruptEntry`, so the caller recomputes (and counts it) instead of using
   damaged weights, meshes or fields.
+* :func:`mesh_hash` -- the content hash of a mesh's arrays, which keys exact-field caches and the
+  seeds of a shape's jobs (never its name or position).
 """
 
 from __future__ import annotations
@@ -21,6 +23,8 @@ import tempfile
 from pathlib import Path
 from typing import Iterator
 
+import numpy as np
+
 #: First bytes of a checksummed cache entry (format version 1).
 MAGIC = b"SALSBENCH-ENTRY-1\n"
 _DIGEST = 32
@@ -28,6 +32,14 @@ _DIGEST = 32
 
 class CorruptEntry(ValueError):
     """A cache entry whose bytes do not match its checksum (or that is not an entry at all)."""
+
+
+def mesh_hash(vertices: np.ndarray, faces: np.ndarray) -> str:
+    """SHA-256 (16 hex) of the vertices as float64 and the faces as int64, C order."""
+    h = hashlib.sha256()
+    h.update(np.ascontiguousarray(vertices, dtype=np.float64).tobytes())
+    h.update(np.ascontiguousarray(faces, dtype=np.int64).tobytes())
+    return h.hexdigest()[:16]
 
 
 def cache_root(explicit: str | os.PathLike | None = None) -> Path:

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from benchmark.storage import mesh_hash
 from benchmark.surface import MIN_RELATIVE_AREA, relative_area
 from datasets.formats import MeshError, check_ply_header, decode_text, parse_obj, parse_off, stl_bytes
 
@@ -107,13 +108,6 @@ class Shape:
             return mesh_hash(self.vertices, self.faces)
         both = hashlib.sha256((mesh_hash(self.vertices, self.faces) + mesh_hash(self.points, np.zeros((0, 3)))).encode())
         return both.hexdigest()[:16]
-
-
-def mesh_hash(vertices: np.ndarray, faces: np.ndarray) -> str:
-    h = hashlib.sha256()
-    h.update(np.ascontiguousarray(vertices, dtype=np.float64).tobytes())
-    h.update(np.ascontiguousarray(faces, dtype=np.int64).tobytes())
-    return h.hexdigest()[:16]
 
 
 def canonical_transform(vertices: np.ndarray) -> Normalization:

@@ -20,7 +20,8 @@ import pandas as pd
 
 from benchmark.metrics import mesh_validity
 from benchmark.serialize import dumps
-from reports import plots, render
+import reports.plots as plots
+import reports.render as render
 from reports.frames import numeric, ok_jobs, one_line
 from reports.protocol import device_text, protocol_items, report_title
 from reports.style import method_colors

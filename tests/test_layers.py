@@ -38,13 +38,20 @@ def project_modules() -> dict[str, Path]:
 
 
 def import_graph(modules: dict[str, Path]) -> dict[str, set[str]]:
-    """{module: project modules it imports} (``from a import b`` counts ``a.b`` when it is a module).
-    A module's own parent packages are left out: Python imports them before the module anyway."""
-    def parents(name):
-        parts = name.split(".")
-        return {".".join(parts[:i]) for i in range(1, len(parts) + 1)}
+    """{module: project modules it imports} (``from a import b`` counts ``a.b`` when it is a module,
+    and the package ``a`` always)."""
+    return {name: project_imports(name, path, PACKAGES) - {name} for name, path in modules.items()}
 
-    return {name: project_imports(name, path, PACKAGES) - parents(name) for name, path in modules.items()}
+
+def folder_graph(modules: dict[str, Path], graph: dict[str, set[str]]) -> dict[str, set[str]]:
+    """{folder: the other folders its modules import}, a folder named like its package."""
+    def folder(name):
+        return ".".join(modules[name].parent.relative_to(REPO).parts)
+
+    folders: dict[str, set[str]] = {folder(m): set() for m in modules}
+    for a, targets in graph.items():
+        folders[folder(a)].update(folder(b) for b in targets if folder(b) != folder(a))
+    return folders
 
 
 @pytest.fixture(scope="module")
@@ -92,6 +99,11 @@ def import_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 def test_the_modules_import_each_other_without_a_cycle(graph):
     cycles = import_cycles(graph)
     assert not cycles, "import cycles: " + "; ".join(" <-> ".join(c) for c in cycles)
+
+
+def test_the_folders_import_each_other_without_a_cycle(graph):
+    cycles = import_cycles(folder_graph(project_modules(), graph))
+    assert not cycles, "folder cycles: " + "; ".join(" <-> ".join(c) for c in cycles)
 
 
 def test_the_checker_sees_lazy_and_relative_imports():
