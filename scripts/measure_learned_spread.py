@@ -31,7 +31,7 @@ def run_learned_tests(path: str, threads: int, seeds: list[int], log: Path, sele
     env = float_path_environment(path)
     env.update(SALSBENCH_TEST_SEEDS=",".join(map(str, seeds)), SALSBENCH_TEST_THREADS=str(threads),
                SALSBENCH_SPREAD_OUT=str(log), OMP_NUM_THREADS=str(threads))
-    cmd = [sys.executable, "-m", "pytest", "-q", "-m", select, "-p", "no:randomly", "--no-header", "-rN"]
+    cmd = [sys.executable, "-m", "pytest", "-q", "-m", select, "--no-header", "-rN"]
     with open(log.with_suffix(".log"), "w") as out:
         return subprocess.run(cmd, cwd=REPO, env=env, stdout=out, stderr=subprocess.STDOUT).returncode
 

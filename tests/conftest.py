@@ -96,11 +96,14 @@ def measured(request):
             return
         import torch
 
-        params = dict(getattr(request.node, "callspec", None).params) if hasattr(request.node, "callspec") else {}
+        from methods.device import cpu_capability
+
+        callspec = getattr(request.node, "callspec", None)
+        params = dict(callspec.params) if callspec else {}
         seed = params.pop("fit_seed", None)
         row = {"test": f"{request.node.module.__name__.split('.')[-1]}::{request.node.originalname}",
                "case": "-".join(str(v) for v in params.values()), "seed": seed,
-               "threads": torch.get_num_threads(), "capability": torch.backends.cpu.get_cpu_capability(),
+               "threads": torch.get_num_threads(), "capability": cpu_capability(),
                **{k: float(v) for k, v in values.items()}}
         with open(path, "a") as f:
             f.write(json.dumps(row) + "\n")

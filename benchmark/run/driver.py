@@ -73,7 +73,7 @@ def fresh_results(db: ResultsDB, table: str, tasks: list, codes: dict[str, str],
     done = db.ok_codes(table)
     stale = [t for t in tasks if t.key in done and done[t.key] != codes[t.key]]
     if stale and not recompute:
-        what = sorted({getattr(t, "method", None) or "floor" for t in stale})
+        what = sorted({t.method if t.kind == "job" else "floor" for t in stale})
         raise ConfigError(f"{where}: {len(stale)} finished {table} rows ({', '.join(what)}) were computed by other "
                           f"code than today's; pass --recompute-stale to recompute them, or use another --out")
     return {t.key for t in tasks if t.key in done} - {t.key for t in stale}
