@@ -11,7 +11,9 @@ each group's learning rate from its start to its end value over ``iterations`` s
 ``(t + 1) / W`` (a linear warm-up; from step W on the schedule is the cosine above) (torch's fused AdamW
 kernel where the budget asks for it, :func:`make_optimizer`); each step draws ``batch_size``
 samples *with replacement* from the M samples with a ``torch.Generator`` seeded by ``seed``; the
-loss is ``method.loss(prediction, batch_targets, inputs, model)``. Everything about a fit is
+loss is ``method.loss(prediction, batch_targets, inputs, model)``; the steps themselves (schedule,
+NaN checks, checkpoints, timing) are :func:`methods.training_loop.run_steps`, shared with the K-NN
+training. Everything about a fit is
 decided by (method, samples, targets, budget, seed): on the CPU the same seed gives the same
 weights bit for bit (same thread count). The seed is the job's fitting stream
 (``benchmark.seeding.JobStreams.fitting_seed``); it seeds the network initialisation and the
@@ -25,7 +27,6 @@ from __future__ import annotations
 
 import io
 import math
-import time
 from dataclasses import asdict, dataclass
 from typing import Callable, Sequence
 
@@ -33,13 +34,10 @@ import numpy as np
 import torch
 
 from benchmark.registry import Registry
-from methods.device import flush_denormals, get_device, seeded_generator, synchronize
+from methods.device import get_device, seeded_generator
 from methods.network import BACKBONES, GridNetwork, make_network
 from methods.params import Param, with_overrides
-
-
-class FittingError(RuntimeError):
-    """A fit that cannot go on (non-finite loss, bad targets); the message is one line."""
+from methods.training_loop import FittingError, run_steps
 
 
 @dataclass(frozen=True)
@@ -173,17 +171,6 @@ def get_budget(budget: str | Budget, overrides: dict | None = None) -> Budget:
     return with_overrides(base, overrides, BUDGET_PARAMS, "budget")
 
 
-def checked_loss(losses: torch.Tensor, end: int, every: int, where: Callable[[int], str]) -> float:
-    """The loss of step ``end - 1`` after checking steps ``end - every .. end - 1`` of ``losses`` for
-    NaN/inf (one device-to-host copy per window); the first non-finite one, step ``i``, raises
-    ``FittingError(f"non-finite loss at {where(i)}")``."""
-    start = max(0, end - every)
-    window = losses[start:end].cpu().numpy()
-    if not np.all(np.isfinite(window)):
-        raise FittingError(f"non-finite loss at {where(start + int(np.flatnonzero(~np.isfinite(window))[0]))}")
-    return float(window[-1])
-
-
 @dataclass
 class FitResult:
     """model (eval mode), per-step losses (float32, length ``iterations``), wall seconds, steps, final
@@ -266,6 +253,14 @@ def _to_tensors(inputs: np.ndarray, targets: dict, device) -> tuple[torch.Tensor
     return x, t
 
 
+def gather_rows(inputs: torch.Tensor, targets: dict[str, torch.Tensor], rows: torch.Tensor
+                ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """``inputs[rows]`` and every ``targets[key][rows]``, each by one ``index_select`` along the first
+    axis (the same values as advanced indexing; on the CPU the random-row gather of a step costs
+    several times less this way: ``benchmarks/bench_fit_profile.py``)."""
+    return inputs.index_select(0, rows), {key: value.index_select(0, rows) for key, value in targets.items()}
+
+
 def fit(method, samples, targets: dict, budget: str | Budget, seed: int = 0, device=None,
         progress: Callable[..., None] | None = None, checkpoints: Sequence[int] = (),
         on_checkpoint: Callable[[int, float, torch.nn.Module], None] | None = None) -> FitResult:
@@ -294,53 +289,26 @@ def fit(method, samples, targets: dict, budget: str | Budget, seed: int = 0, dev
         raise FittingError("no training samples")
     generator = seeded_generator(seed, device)
     model = make_network(method.input_dim, method.output_dim, **budget.network_config()).to(device)
-    model.train()
     optimizer = make_optimizer(model, budget)
     needs_grad = method.loss_needs_input_grad
     T, B = int(budget.iterations), int(budget.batch_size)
     warmup = round(budget.warmup_fraction * T)
-    losses = torch.zeros(T, dtype=torch.float32, device=device)
-    every = max(1, int(budget.log_every))
-    pause_at = {int(c) for c in checkpoints}
-    if pause_at and (min(pause_at) < 1 or max(pause_at) > T or on_checkpoint is None):
-        raise ValueError(f"checkpoints must be steps in [1, {T}] with an on_checkpoint callback, got {sorted(pause_at)}")
-    paused = 0.0
-    synchronize(device)
-    t0 = time.perf_counter()
-    with flush_denormals():  # Softplus underflow: same numbers, no denormal slow path
-        for step in range(T):
-            for group in optimizer.param_groups:
-                group["lr"] = learning_rate(step, T, group["lr_start"], group["lr_end"], warmup)
-            idx = torch.randint(0, M, (B,), generator=generator, device=device)
-            xb = x_all[idx]
-            if needs_grad:
-                xb.requires_grad_(True)
-            tb = {k: v[idx] for k, v in t_all.items()}
-            optimizer.zero_grad(set_to_none=True)
-            loss = method.loss(model(xb), tb, inputs=xb, model=model)
-            loss.backward()
-            optimizer.step()
-            losses[step] = loss.detach()
-            if (step + 1) % every == 0 or step + 1 == T:
-                last = checked_loss(losses, step + 1, every, lambda i: f"iteration {i} of {T} (method '{method.name}', "
-                                                                       f"budget '{budget.name}', seed {seed})")
-                if progress is not None:
-                    progress(step=step + 1, loss=last)
-            if step + 1 in pause_at:
-                synchronize(device)
-                t_pause = time.perf_counter()
-                model.eval()
-                on_checkpoint(step + 1, t_pause - t0 - paused, model)
-                model.train()
-                paused += time.perf_counter() - t_pause
-    synchronize(device)
-    seconds = time.perf_counter() - t0 - paused
-    model.eval()
+
+    def step_loss(step: int) -> torch.Tensor:
+        idx = torch.randint(0, M, (B,), generator=generator, device=device)
+        xb, tb = gather_rows(x_all, t_all, idx)
+        if needs_grad:
+            xb.requires_grad_(True)
+        return method.loss(model(xb), tb, inputs=xb, model=model)
+
+    where = f"(method '{method.name}', budget '{budget.name}', seed {seed})"
+    result = run_steps(model, optimizer, T, step_loss, log_every=budget.log_every,
+                       where=lambda i: f"iteration {i} of {T} {where}",
+                       learning_rate=lambda group, step: learning_rate(step, T, group["lr_start"], group["lr_end"], warmup),
+                       progress=progress, checkpoints=checkpoints, on_checkpoint=on_checkpoint, device=device)
     check_not_constant(model, x_all, f"method '{method.name}', budget '{budget.name}', seed {seed}")
-    curve = losses.cpu().numpy()
-    final = float(np.mean(curve[-every:]))
-    return FitResult(model=model, losses=curve, seconds=seconds, iterations=T, final_loss=final,
-                     samples_per_s=T * B / max(seconds, 1e-9))
+    return FitResult(model=model, losses=result.losses, seconds=result.seconds, iterations=T,
+                     final_loss=result.final_loss, samples_per_s=T * B / max(result.seconds, 1e-9))
 
 
 # ---------------------------------------------------------------------------------------------

@@ -106,8 +106,9 @@ from benchmark.sampler import sample_training_data
 from benchmark.surface import sample_surface
 from datasets import MeshError, Shape, get_dataset
 from datasets.builtin import VARIANTS, generate_shape
-from methods.device import get_device, seeded_generator, synchronize
-from methods.fitting import FittingError, checked_loss, weights_from_bytes, weights_to_bytes
+from methods.device import get_device, seeded_generator
+from methods.fitting import weights_from_bytes, weights_to_bytes
+from methods.training_loop import FittingError, run_steps
 from methods.knn_network import KNN_BUDGETS, KNNBudget, knn_neighbourhoods, make_knn_network, segment_neighbourhoods
 
 __all__ = ["TEST_SEED", "DEFAULT_TRAINING_SEED", "TrainingSetError", "training_shapes", "builtin_test_hashes",
@@ -363,34 +364,23 @@ def train(method, shapes: Sequence[Shape], budget: str | KNNBudget, seed: int = 
     model.train()
     optimizer = torch.optim.AdamW(model.parameters(), lr=budget.lr, weight_decay=budget.weight_decay)
     needs_grad = method.loss_needs_input_grad
-    T, every = int(budget.steps), int(budget.log_every)
-    losses = torch.zeros(T, dtype=torch.float32, device=device)
-    synchronize(device)
-    t0 = time.perf_counter()
-    for step in range(T):
+    T = int(budget.steps)
+
+    def step_loss(step: int) -> torch.Tensor:
         a, q, t = pools.batch(budget, rng)
         anchors = torch.from_numpy(a).to(device)
         if needs_grad:
             anchors.requires_grad_(True)
         targets = {k: torch.from_numpy(v).to(device) for k, v in t.items()}
-        optimizer.zero_grad(set_to_none=True)
-        loss = method.loss(model(anchors, torch.from_numpy(q).to(device)), targets, inputs=anchors, model=model)
-        loss.backward()
-        optimizer.step()
-        losses[step] = loss.detach()
-        if (step + 1) % every == 0 or step + 1 == T:
-            last = checked_loss(losses, step + 1, every, lambda i: f"step {i} of {T} (method '{method.name}', "
-                                                                   f"knn budget '{budget.name}', seed {seed})")
-            if progress is not None:
-                progress(step=step + 1, loss=last)
-    synchronize(device)
-    seconds = time.perf_counter() - t0
-    model.eval()
+        return method.loss(model(anchors, torch.from_numpy(q).to(device)), targets, inputs=anchors, model=model)
+
+    result = run_steps(model, optimizer, T, step_loss, log_every=budget.log_every,
+                       where=lambda i: f"step {i} of {T} (method '{method.name}', knn budget '{budget.name}', seed {seed})",
+                       progress=progress, device=device)
     model.knn_k = budget.k
-    curve = losses.cpu().numpy()
     B = budget.shapes_per_batch * budget.samples_per_item
-    return KNNTrainResult(model=model, losses=curve, seconds=seconds, steps=T,
-                          samples_per_s=T * B / max(seconds, 1e-9), final_loss=float(np.mean(curve[-every:])),
+    return KNNTrainResult(model=model, losses=result.losses, seconds=result.seconds, steps=T,
+                          samples_per_s=T * B / max(result.seconds, 1e-9), final_loss=result.final_loss,
                           pool_seconds=pools.seconds)
 
 

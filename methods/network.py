@@ -164,11 +164,49 @@ def trilinear(volume: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     base = (cell[:, 0] * R + cell[:, 1]) * R + cell[:, 2]
     corner = torch.tensor([0, 1], device=points.device)
     offsets = (corner[:, None, None] * (R * R) + corner[None, :, None] * R + corner[None, None, :]).reshape(8)
-    corners = volume.reshape(R * R * R, C).index_select(0, (base[:, None] + offsets).reshape(-1))
-    c = corners.reshape(-1, 2, 2, 2, C)  # c[p, a, b, d] = volume[i + a, j + b, k + d]
-    c = torch.lerp(c[:, 0], c[:, 1], frac[:, 0, None, None, None])  # along x
-    c = torch.lerp(c[:, 0], c[:, 1], frac[:, 1, None, None])  # along y
-    return torch.lerp(c[:, 0], c[:, 1], frac[:, 2, None])  # along z
+    rows = (base[:, None] + offsets).reshape(-1)
+    fx, fy, fz = frac[:, 0, None, None, None], frac[:, 1, None, None], frac[:, 2, None]
+    if frac.requires_grad:
+        return _lerp_corners(volume.reshape(R * R * R, C).index_select(0, rows), fx, fy, fz)
+    return _TrilinearInVolume.apply(volume, rows, fx, fy, fz)
+
+
+def _lerp_corners(corners: torch.Tensor, fx: torch.Tensor, fy: torch.Tensor, fz: torch.Tensor) -> torch.Tensor:
+    """(P 8, C) corner features, rows ordered (x, y, z) bits per point -> (P, C) by a lerp along x, y, z."""
+    c = corners.reshape(-1, 2, 2, 2, corners.shape[-1])  # c[p, a, b, d] = volume[i + a, j + b, k + d]
+    c = torch.lerp(c[:, 0], c[:, 1], fx)  # along x
+    c = torch.lerp(c[:, 0], c[:, 1], fy)  # along y
+    return torch.lerp(c[:, 0], c[:, 1], fz)  # along z
+
+
+class _TrilinearInVolume(torch.autograd.Function):
+    """:func:`trilinear` for points that carry no gradient, with its backward to the volume written out.
+
+    The forward is the same lerp chain; the backward forms each corner's weight product in the order
+    autograd's lerp backward does (z, then y, then x) and adds the (P 8, C) products into the volume
+    with one ``index_add_``, so the gradient is the same bit for bit, without autograd's zero-filled
+    tensor per sliced corner block and its bookkeeping per op. Not differentiable twice (the points
+    are constants here; a second-order loss takes the autograd path of :func:`trilinear`).
+    """
+
+    @staticmethod
+    def forward(ctx, volume, rows, fx, fy, fz):
+        R, C = volume.shape[0], volume.shape[-1]
+        ctx.save_for_backward(rows, fx, fy, fz)
+        ctx.volume_shape = volume.shape
+        return _lerp_corners(volume.reshape(R * R * R, C).index_select(0, rows), fx, fy, fz)
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad):
+        rows, fx, fy, fz = ctx.saved_tensors
+        shape = ctx.volume_shape
+        gz = torch.stack([grad * (1 - fz), grad * fz], dim=1)  # (P, 2, C): the two ends of the z lerp
+        gy = torch.stack([gz * (1 - fy), gz * fy], dim=1)  # (P, 2, 2, C)
+        gx = torch.stack([gy * (1 - fx), gy * fx], dim=1)  # (P, 2, 2, 2, C)
+        volume_grad = grad.new_zeros(shape[0] * shape[1] * shape[2], shape[3])
+        volume_grad.index_add_(0, rows, gx.reshape(-1, shape[3]))
+        return volume_grad.reshape(shape), None, None, None, None
 
 
 class FeatureGrid(nn.Module):

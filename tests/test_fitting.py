@@ -8,9 +8,10 @@ import pytest
 import torch
 
 from methods.base import Method
-from methods.fitting import (BUDGETS, Budget, FittingError, check_not_constant, cosine_lr, fit, get_budget,
+from methods.fitting import (BUDGETS, Budget, check_not_constant, cosine_lr, fit, get_budget,
                              learning_rate, model_from_bytes, model_to_bytes, parameter_groups)
 from methods.marching_cubes import marching_cubes_grid
+from methods.training_loop import FittingError
 from methods.network import GridNetwork, make_network
 from methods.query import dense_grid_points, evaluate
 

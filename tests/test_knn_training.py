@@ -13,7 +13,7 @@ from datasets import get_dataset
 from datasets.builtin import VARIANTS
 from methods import knn_training
 from methods.base import LearnedPointCloudMethod
-from methods.fitting import FittingError
+from methods.training_loop import FittingError
 from methods.knn_network import KNN_BUDGETS, KNNBudget
 from methods.knn_training import (TrainingPools, TrainingSetError, knn_model_from_bytes, knn_model_to_bytes, train,
                                   training_set_digest, training_shapes)
