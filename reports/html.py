@@ -23,7 +23,7 @@ from benchmark.serialize import dumps
 import reports.plots as plots
 import reports.render as render
 from reports.frames import numeric, ok_jobs, one_line
-from reports.protocol import device_text, protocol_items, report_title
+from reports.protocol import device_text, execution_text, protocol_items, report_title
 from reports.style import method_colors
 from reports.statistics import tests_against_best
 from reports.summary import Summary
@@ -261,6 +261,8 @@ def _failed_html(summary: Summary) -> str:
 
 def _protocol_html(context: dict) -> str:
     items = protocol_items(context) + [("device", device_text(context))]
+    if execution_text(context):
+        items.append(("execution", execution_text(context)))
     return '<dl class="proto">' + "".join(f"<dt>{esc(k)}</dt><dd>{esc(v)}</dd>" for k, v in items) + "</dl>"
 
 

@@ -27,7 +27,7 @@ from __future__ import annotations
 from benchmark.metrics import PRESETS
 
 CONTEXT_KEYS = ("dataset", "task", "mode", "budget", "budget_values", "grid", "seeds", "methods", "shapes",
-                "metric_preset", "eval_points", "device", "cpu_model", "gpu", "git_commit")
+                "metric_preset", "eval_points", "device", "cpu_model", "gpu", "git_commit", "execution")
 
 
 def check_context(context) -> dict:
@@ -65,6 +65,20 @@ def device_text(context: dict) -> str:
     text = str(context["device"] or "device not recorded")
     extra = [str(context[k]) for k in ("gpu", "cpu_model") if context[k] and str(context[k]) not in text]
     return text + (f" ({'; '.join(extra)})" if extra else "")
+
+
+def execution_text(context: dict) -> str:
+    """How the jobs ran: 'executor process, 2 workers x 1 torch thread'; '' where not recorded."""
+    execution = context.get("execution") or {}
+    if not execution.get("executor"):
+        return ""
+    workers, threads = execution.get("workers"), execution.get("threads_per_job")
+    text = f"executor {execution['executor']}"
+    if workers:
+        text += f", {workers} worker{'s' if workers != 1 else ''}"
+    if threads:
+        text += f" x {threads} torch thread{'s' if threads != 1 else ''}"
+    return text
 
 
 def protocol_items(context: dict) -> list[tuple[str, str]]:

@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 
 from reports.frames import check_results
-from reports.protocol import device_text
+from reports.protocol import device_text, execution_text
 from reports.style import method_order
 from reports.table import DASH, Cell, Table, fmt, md_escape, table_markdown_section, tex_escape
 
@@ -31,7 +31,7 @@ STAGE_LABELS = {
     "metrics_s": "metrics",
     "total_s": "total",
 }
-TIMING_COLUMNS = ["method", "stage", "label", "level", "n_jobs", "mean_s", "median_s", "std_s", "device"]
+TIMING_COLUMNS = ["method", "stage", "label", "level", "n_jobs", "mean_s", "median_s", "std_s", "device", "execution"]
 SUM_STAGE = "sum_of_stages"
 
 
@@ -91,6 +91,7 @@ def timing_frame(results: pd.DataFrame, context: dict) -> pd.DataFrame:
     frame = pd.concat([stats, sum_rows], ignore_index=True) if len(stats) else sum_rows
     frame["label"] = frame["stage"].map(label)
     frame["device"] = device_text(context)
+    frame["execution"] = execution_text(context)
     rank = {c: i for i, (c, _, _) in enumerate(stages)}
     frame = frame.assign(_m=frame["method"].map({m: i for i, m in enumerate(methods)}),
                          _s=frame["stage"].map(rank)).sort_values(["_m", "_s"], kind="stable")
@@ -125,8 +126,9 @@ def timing_caption(timing: pd.DataFrame, context: dict, results: pd.DataFrame) -
         if n_cached:
             cached = (f" {n_cached} job(s) reused cached results: their stage times are those of the job that "
                       f"computed them, their total is the time actually spent, so the total can be below the sum.")
+    execution = execution_text(context)
     return (f"Wall-clock seconds per job (shape × seed), over successful jobs ({jobs}). Device: "
-            f"{device_text(context)}. Extraction sub-steps (indented) are part of extraction and "
+            f"{device_text(context)}{'; ' + execution if execution else ''}. Extraction sub-steps (indented) are part of extraction and "
             f"not added again; 'sum of stages' adds the stage means; 'total' is the job's wall time "
             f"(includes loading and bookkeeping).{cached} Machines shared with other work give noisy "
             f"absolute times: compare methods within one run.")

@@ -26,7 +26,8 @@ METHODS = ("sals", "sdf")
 CONTEXT = dict(dataset="builtin", task="encode", mode="neural", budget="quick",
                budget_values={"steps": 2000, "lr": 0.001}, grid=128, seeds=[0, 1], methods=list(METHODS),
                shapes=list(SHAPES), metric_preset="default", eval_points=1_000_000, device="cpu",
-               cpu_model="Test CPU 3000", gpu=None, git_commit="0123456789abcdef")
+               cpu_model="Test CPU 3000", gpu=None, git_commit="0123456789abcdef",
+               execution={"executor": "process", "workers": 2, "threads_per_job": 1})
 
 
 def make_results() -> tuple[pd.DataFrame, pd.DataFrame]:
@@ -188,7 +189,7 @@ def test_timing_csv_sums_and_means(written):
     paths, results, _ = written
     timing = pd.read_csv(paths["timing.csv"])
     assert list(timing.columns) == ["method", "stage", "label", "level", "n_jobs", "mean_s", "median_s", "std_s",
-                                    "device"]
+                                    "device", "execution"]
     for method in METHODS:
         t = timing[timing["method"] == method].set_index("stage")
         stages = t[t["level"] == "stage"]
@@ -204,6 +205,8 @@ def test_timing_csv_sums_and_means(written):
     assert timing[timing["method"] == "sdf"]["n_jobs"].max() == 4  # failed cylinder jobs excluded
     md = paths["timing.md"].read_text()
     assert "Test CPU 3000" in md and "Device: cpu" in md
+    assert "executor process, 2 workers x 1 torch thread." in md and set(timing["execution"]) == {
+        "executor process, 2 workers x 1 torch thread"}
     mean = md_tables(md)["Wall-clock seconds per job (mean)"]
     assert mean[0] == ["stage", "sals", "sdf"]
     rows = {r[0].strip("* "): r[1:] for r in mean[1:]}

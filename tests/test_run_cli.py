@@ -62,7 +62,7 @@ def one_error_line(capsys) -> str:
     (["--seed", "-1"], "--seed values must lie in [0, 2^63)"),
     (["--seed", str(2**63)], "--seed values must lie in [0, 2^63)"),
     (["--workers", "0"], "--workers must be >= 1"),
-    (["--workers", "2"], "--workers applies to --executor process or ray"),
+    (["--executor", "local", "--workers", "2"], "--workers applies to --executor auto, process or ray"),
     (["--executor", "cluster"], "unknown executor"),
     (["--address", "auto"], "--address only applies to --executor ray"),
     (["--limit", "0"], "--limit must be >= 1"),

@@ -58,6 +58,46 @@ def test_threads_per_worker():
     assert threads_per_worker(3, cores=16) == 5
 
 
+def test_physical_cores_count_smt_siblings_once(monkeypatch, tmp_path):
+    """Two packages x 2 cores x 2 SMT threads = 8 CPUs, 4 physical cores; only allowed CPUs count."""
+    from benchmark.run import executors
+
+    blocks = [f"processor\t: {cpu}\nphysical id\t: {cpu // 4}\ncore id\t\t: {cpu % 2}\n\n" for cpu in range(8)]
+    cpuinfo = tmp_path / "cpuinfo"
+    cpuinfo.write_text("".join(blocks))
+    real_open = open
+    monkeypatch.setattr("builtins.open", lambda path, *a, **k: real_open(cpuinfo if path == "/proc/cpuinfo" else path,
+                                                                         *a, **k))
+    monkeypatch.setattr(executors.os, "sched_getaffinity", lambda pid: set(range(8)), raising=False)
+    assert executors.physical_cores() == 4
+    monkeypatch.setattr(executors.os, "sched_getaffinity", lambda pid: {0, 1, 2}, raising=False)
+    assert executors.physical_cores() == 2  # CPUs 0 and 2 are core 0, CPU 1 is core 1, of package 0
+
+
+def test_auto_executor_runs_one_process_per_physical_core_on_a_cpu(monkeypatch):
+    """The default executor: process workers (one per physical core, never more than the tasks, one
+    torch thread each) for two or more tasks on a CPU; the local executor for a single task."""
+    from benchmark.run import executors
+    from benchmark.run.config import RunConfig
+
+    monkeypatch.setattr(executors, "physical_cores", lambda: 4)
+    many = executors.make_executor(RunConfig(), 10)
+    try:
+        assert isinstance(many, ProcessExecutor) and (many.workers, many.threads) == (4, 1)
+        assert executors.execution_record(many) == {"executor": "process", "workers": 4, "threads_per_job": 1}
+    finally:
+        many.close()
+    few = executors.make_executor(RunConfig(workers=8, threads=2), 3)
+    try:
+        assert (few.workers, few.threads) == (3, 2)
+    finally:
+        few.close()
+    one = executors.make_executor(RunConfig(), 1)
+    assert isinstance(one, LocalExecutor) and one.threads is None
+    assert executors.execution_record(one)["threads_per_job"] == __import__("torch").get_num_threads()
+    assert RunConfig().executor == "auto"
+
+
 def test_pin_threads_sets_the_openmp_variables_and_torchs_pool(monkeypatch):
     """What `train --threads T` and every process worker call: after it, torch runs T intra-op threads
     and a library loaded later (the KD-tree's OpenMP runtime) reads T from OMP_NUM_THREADS."""

@@ -104,18 +104,20 @@ def build_parser() -> argparse.ArgumentParser:
     a("--resume", action="store_true", help="continue a run with its saved configuration (OUT/config.json; "
                                             "without --out: the latest run under runs/); options given may add "
                                             "methods or seeds or change how it runs, never what it computes")
-    a("--executor", help="local (default; in-process, sequential), process (--workers local processes), "
-                         "ray (Ray tasks, local instance or --address cluster)")
-    a("--workers", type=int, metavar="K", help="parallel jobs for process (default: CPU cores) and for a local ray "
-                                               "instance (its CPU count); torch threads per job = max(1, cores // K)")
+    a("--executor", help="auto (default: on a CPU, one process per physical core with one torch thread each when "
+                         "there are two or more tasks; else local), local (in-process, sequential), process "
+                         "(--workers local processes), ray (Ray tasks, local instance or --address cluster)")
+    a("--workers", type=int, metavar="K", help="parallel jobs for auto and process (default: physical cores for "
+                                               "auto, CPU cores for process) and for a local ray instance (its CPU "
+                                               "count); torch threads per job: auto 1, process max(1, cores // K)")
     a("--address", metavar="ADDR", help="ray cluster to join: 'auto' (a cluster started with `ray start`) or "
                                         "host:port; without it a local ray instance is started")
     a("--gpus-per-job", dest="gpus_per_job", type=float, metavar="F",
       help="ray: GPUs a fitting job asks for when the cluster has GPUs (default 1; fractions allowed, e.g. 0.5)")
     a("--cpus-per-job", dest="cpus_per_job", type=float, metavar="C", help="ray: CPUs per job (default 1)")
     a("--threads", type=int, metavar="T",
-      help="torch CPU threads per job (default: torch's own, i.e. all cores, for local; cores // workers for "
-           "process; --cpus-per-job for ray). On a loaded machine 1 thread can be far faster than 2")
+      help="torch CPU threads per job (default: 1 for auto's process workers, torch's own (all cores) for local "
+           "and for auto with one task; cores // workers for process; --cpus-per-job for ray)")
     a("--retries", type=int, metavar="R", help="times a job whose worker died is retried (default 1); "
                                                "jobs that raise are recorded failed at once")
     a("--checkpoints", type=_fractions, metavar="F1,F2,...",

@@ -96,7 +96,7 @@ class RunConfig:
     ceiling: bool = _f(True, "identity", "a neural sweep also runs the same sweep in oracle mode")
     methods: tuple[str, ...] = _f((), "scope", "methods (empty: all registered)")
     seeds: tuple[int, ...] = _f((0,), "scope", "seeds")
-    executor: str = _f("local", "execution", "local, process or ray")
+    executor: str = _f("auto", "execution", "auto, local, process or ray")
     workers: int | None = _f(None, "execution", "parallel jobs")
     address: str | None = _f(None, "execution", "ray cluster address")
     gpus_per_job: float = _f(1.0, "execution", "ray: GPUs per fitting job")
@@ -184,7 +184,7 @@ class RunConfig:
         if self.address is not None and self.executor != "ray":
             raise ConfigError("--address only applies to --executor ray")
         if self.workers is not None and self.executor == "local":
-            raise ConfigError("--workers applies to --executor process or ray; the local executor runs one job at a time")
+            raise ConfigError("--workers applies to --executor auto, process or ray; the local executor runs one job at a time")
 
     # -- roles ------------------------------------------------------------------------------
     @classmethod

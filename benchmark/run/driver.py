@@ -104,7 +104,7 @@ def _schedule(plan: Plan, todo: list):
 def run(plan: Plan, run_dir: RunDirectory, record: dict, executor=None) -> RunOutcome:
     """Run the plan's unfinished tasks into ``run_dir`` (which the caller has locked)."""
     from benchmark.run.display import Display
-    from benchmark.run.executors import make_executor
+    from benchmark.run.executors import execution_record, make_executor
     from benchmark.run.export import export
 
     config = plan.config
@@ -117,17 +117,17 @@ def run(plan: Plan, run_dir: RunDirectory, record: dict, executor=None) -> RunOu
     except ConfigError:
         db.close()
         raise
-    record = {**record, "started": now_iso()}
-    run_dir.write_config(record)
     attempts = db.attempts()
     todo = [f for f in floors if f.key not in done_floors] + [j for j in jobs if j.key not in done_jobs]
     todo.sort(key=_schedule(plan, todo))
+    executor = executor or make_executor(config, len(todo))
+    record = {**record, "started": now_iso(), "execution": execution_record(executor)}
+    run_dir.write_config(record)
     total = len(floors) + len(jobs)
     skipped = total - len(todo)
     print(f"salsbench: {len(jobs)} jobs + {len(floors)} floor tasks, {skipped} already done, run dir {run_dir.path}",
           file=sys.stderr, flush=True)
     display = Display(total, config.quiet, done=skipped)
-    executor = executor or make_executor(config)
     t0 = time.perf_counter()
     try:
         for spec, outcome in executor.run(run_task, todo, on_stage=display.stage):

@@ -11,7 +11,11 @@ errors (``run_task`` turns them into failed results); an *exception* outcome the
 infrastructure lost the task (its worker process died, or Ray gave up after ``retries`` retries).
 The driver records it as a failed row with that error: nothing is lost silently.
 
-* :class:`LocalExecutor` -- in-process, sequential, in the given order (the default; stage progress).
+* ``auto`` (the default) -- :func:`auto_executor`: on a CPU, a run of two or more tasks gets a
+  :class:`ProcessExecutor` with one worker per physical core and one torch thread each (two jobs
+  side by side on 2 cores finish more steps per second than one job on both cores); a single task,
+  or a CUDA device (one GPU), gets the :class:`LocalExecutor` with all threads.
+* :class:`LocalExecutor` -- in-process, sequential, in the given order (stage progress).
 * :class:`ProcessExecutor` -- ``concurrent.futures.ProcessPoolExecutor`` with the *spawn* context,
   ``workers`` processes, torch threads per worker ``max(1, cores // workers)``; stage progress comes
   back through a queue. At most ``workers`` tasks are in flight, so a crashed worker (the pool is
@@ -58,6 +62,31 @@ def available_cores() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def physical_cores() -> int:
+    """Physical cores among the CPUs this process may use: distinct (package, core) pairs of
+    ``/proc/cpuinfo`` (SMT siblings count once); :func:`available_cores` where that is not readable."""
+    allowed = None
+    try:
+        allowed = os.sched_getaffinity(0)
+    except (AttributeError, OSError):
+        pass
+    cores, cpu, package = set(), None, None
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                key, _, value = line.partition(":")
+                key, value = key.strip(), value.strip()
+                if key == "processor":
+                    cpu, package = int(value), None
+                elif key == "physical id":
+                    package = value
+                elif key == "core id" and (allowed is None or cpu in allowed):
+                    cores.add((package, value))
+    except (OSError, ValueError):
+        return available_cores()
+    return len(cores) or available_cores()
+
+
 def threads_per_worker(workers: int, cores: int | None = None) -> int:
     """Torch threads per worker process: ``max(1, cores // workers)``."""
     return max(1, (cores or available_cores()) // max(1, int(workers)))
@@ -79,9 +108,14 @@ def _stage_forwarder(on_stage: StageCallback | None, label: str):
 
 
 class LocalExecutor:
-    """Runs tasks one after the other in this process, in the given order."""
+    """Runs tasks one after the other in this process, in the given order, with ``threads`` torch
+    threads (None: torch's default, every core)."""
 
     name = "local"
+    workers = 1
+
+    def __init__(self, threads: int | None = None):
+        self.threads = int(threads) if threads else None
 
     def run(self, fn: Callable, specs: Sequence, on_stage: StageCallback | None = None) -> Iterator[tuple[Any, Any]]:
         for spec in specs:
@@ -279,6 +313,8 @@ class RayExecutor:
         resources = ray.cluster_resources()
         self.cluster_gpus = float(resources.get("GPU", 0.0))
         self.cluster_cpus = float(resources.get("CPU", 0.0))
+        self.workers = max(1, int(self.cluster_cpus // max(self.cpus_per_job, 1e-9)))  # tasks in flight at most
+        self.threads = max(1, int(self.cpus_per_job))
         self._remote = ray.remote(_ray_call)
 
     def resources_for(self, spec) -> dict:
@@ -317,17 +353,44 @@ class RayExecutor:
 
 #: Executor name -> factory taking the run's :class:`benchmark.run.config.RunConfig`.
 EXECUTORS: Registry = Registry("executor")
-EXECUTORS.register("local", lambda config: LocalExecutor())
-EXECUTORS.register("process", lambda config: ProcessExecutor(workers=config.workers, retries=config.retries,
-                                                             threads=config.threads))
-EXECUTORS.register("ray", lambda config: RayExecutor(address=config.address, workers=config.workers,
-                                                     retries=config.retries, gpus_per_job=config.gpus_per_job,
-                                                     cpus_per_job=config.cpus_per_job))
+def auto_executor(config, tasks: int):
+    """The default executor for ``tasks`` tasks (module docstring): process workers on a CPU, one per
+    physical core (``config.workers`` if given, never more than the tasks) with ``config.threads`` (default
+    1) torch threads each; the local executor for one task or a non-CPU device."""
+    from methods.device import get_device
+
+    workers = min(int(config.workers or physical_cores()), int(tasks))
+    if get_device().type != "cpu" or workers < 2:
+        return LocalExecutor(threads=config.threads)
+    return ProcessExecutor(workers=workers, retries=config.retries, threads=config.threads or 1)
 
 
-def make_executor(config):
-    """The executor a run config names, built with its workers/address/retries/resources."""
-    return EXECUTORS.get(config.executor)(config)
+#: Executor name -> factory taking the run's :class:`benchmark.run.config.RunConfig` and its number of tasks.
+EXECUTORS: Registry = Registry("executor")
+EXECUTORS.register("auto", auto_executor)
+EXECUTORS.register("local", lambda config, tasks: LocalExecutor(threads=config.threads))
+EXECUTORS.register("process", lambda config, tasks: ProcessExecutor(workers=config.workers, retries=config.retries,
+                                                                    threads=config.threads))
+EXECUTORS.register("ray", lambda config, tasks: RayExecutor(address=config.address, workers=config.workers,
+                                                            retries=config.retries, gpus_per_job=config.gpus_per_job,
+                                                            cpus_per_job=config.cpus_per_job))
+
+
+def make_executor(config, tasks: int):
+    """The executor a run config names (``auto``: :func:`auto_executor`) for ``tasks`` tasks, built
+    with its workers/address/retries/resources."""
+    return EXECUTORS.get(config.executor)(config, tasks)
+
+
+def execution_record(executor) -> dict[str, Any]:
+    """What ran the jobs, for config.json and the timing caption: the executor's name, its parallel
+    workers and the torch threads of each job (None where the executor leaves torch's default)."""
+    threads = executor.threads
+    if threads is None:
+        import torch
+
+        threads = torch.get_num_threads()
+    return {"executor": executor.name, "workers": executor.workers, "threads_per_job": threads}
 
 
 def ray_available() -> tuple[bool, str]:
@@ -340,5 +403,6 @@ def ray_available() -> tuple[bool, str]:
         return False, f"ray is not installed ({exc}); pip install 'ray>=2.9' to run the Ray executor"
 
 
-__all__ = ["LocalExecutor", "ProcessExecutor", "RayExecutor", "WorkerLost", "make_executor", "pin_threads",
-           "threads_per_worker", "available_cores", "ray_available", "EXECUTORS"]
+__all__ = ["LocalExecutor", "ProcessExecutor", "RayExecutor", "WorkerLost", "make_executor", "auto_executor",
+           "execution_record", "pin_threads", "threads_per_worker", "available_cores", "physical_cores",
+           "ray_available", "EXECUTORS"]

@@ -69,7 +69,7 @@ def report_context(record: dict[str, Any]) -> dict[str, Any]:
         "metric_preset": config.get("metric_preset"), "eval_points": resolved.get("eval_points"),
         "device": env.get("device"), "cpu_model": env.get("cpu_model"), "gpu": env.get("gpu"),
         "git_commit": env.get("git_commit"), "sweep": sweep_of(record),
-        "budget_params": config.get("budget_params", {}),
+        "budget_params": config.get("budget_params", {}), "execution": record.get("execution"),
     }
 
 
