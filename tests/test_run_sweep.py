@@ -83,8 +83,8 @@ def test_a_budget_sweep_fits_each_value_and_adds_one_oracle_ceiling(fakes, tmp_p
     # the budget does not apply to the exact field: one ceiling job, its sweep value empty
     assert len(oracle) == 1 and oracle["sweep.budget.iterations"].isna().all() and oracle["fitted"].sum() == 0
     info = [json.loads(r[0]) for r in sqlite3.connect(out / "results.db").execute(
-        "SELECT info FROM jobs WHERE mode = 'neural' ORDER BY rowid")]
-    assert [i["fit_steps"] for i in info] == [20, 40]
+        "SELECT info FROM jobs WHERE mode = 'neural'")]
+    assert sorted(i["fit_steps"] for i in info) == [20, 40]  # rows come in the order the jobs finished
 
 
 def test_budget_params_override_the_budget_and_are_recorded(fakes, tmp_path):
