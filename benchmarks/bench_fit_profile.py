@@ -2,6 +2,9 @@
 
 Print the table (one torch thread, the *cpu* budget, medians of interleaved repetitions):
     .venv/bin/python -m benchmarks.bench_fit_profile [--threads 1] [--rounds 60] [--methods sals sdf udf bof]
+Compare whole steps with the network code of another commit (its ``methods/network.py``, batches
+gathered by advanced indexing as that loop did), interleaved in one process:
+    .venv/bin/python -m benchmarks.bench_fit_profile --against a46de88
 or as pytest-benchmark (one whole step per method):
     .venv/bin/pytest benchmarks/bench_fit_profile.py -o python_files='bench_*.py' --benchmark-enable -q
 
@@ -213,13 +216,64 @@ def test_fit_step(benchmark, method_name):
     benchmark(p.step)
 
 
+def network_module_at(revision: str):
+    """``methods/network.py`` as of git ``revision``, loaded as a module of its own."""
+    import importlib.util
+    import subprocess
+    import sys
+    import tempfile
+    from pathlib import Path
+
+    source = subprocess.run(["git", "show", f"{revision}:methods/network.py"], capture_output=True, text=True,
+                            check=True, cwd=Path(__file__).resolve().parents[1]).stdout
+    path = Path(tempfile.mkdtemp()) / "network_at_revision.py"
+    path.write_text(source)
+    spec = importlib.util.spec_from_file_location(f"network_at_{revision}", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def step_against(method_name: str, network_module, rounds: int = 60) -> dict:
+    """Median ms of a whole step now and with ``network_module``'s network and advanced-indexing
+    batches (the same seed, data and optimizer settings), interleaved."""
+    now = Profile(method_name)
+    then = Profile(method_name)
+    torch.manual_seed(0)
+    then.model = network_module.make_network(then.method.input_dim, then.method.output_dim,
+                                             **then.budget.network_config())
+    then.model.train()
+    then.optimizer = make_optimizer(then.model, then.budget)
+
+    def old_step():
+        rows = torch.randint(0, len(then.inputs), (then.B,), generator=then.generator)
+        x, t = then.inputs[rows], {k: v[rows] for k, v in then.targets.items()}
+        if then.method.loss_needs_input_grad:
+            x.requires_grad_(True)
+        then.optimizer.zero_grad(set_to_none=True)
+        then.method.loss(then.model(x), t, inputs=x, model=then.model).backward()
+        then.optimizer.step()
+
+    ms = _median_ms({"now": now.step, "then": old_step}, rounds)
+    return {**ms, "speed-up": ms["then"] / ms["now"]}
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--rounds", type=int, default=60)
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
+    parser.add_argument("--against", metavar="REV", help="compare whole steps with the network code of git REV")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
+    if args.against:
+        module = network_module_at(args.against)
+        print(f"| method | step ms at {args.against} | step ms now | speed-up |\n|---|---|---|---|")
+        for m in args.methods:
+            r = step_against(m, module, args.rounds)
+            print(f"| {m} | {r['then']:.2f} | {r['now']:.2f} | {r['speed-up']:.2f}x |")
+        return
     results = {m: profile(m, args.rounds) for m in args.methods}
     print(f"torch threads={torch.get_num_threads()}, cpu budget, batch {BUDGETS['cpu'].batch_size}, "
           f"median of {args.rounds} interleaved rounds")

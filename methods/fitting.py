@@ -101,32 +101,13 @@ class Budget:
         return config
 
 
-#: *paper* = the paper's network and schedule (GPU scale: tens of hours on 2 CPU cores). *quick* = the CPU budget of
-#: the default benchmark run (one fit <= ~60 s on 2 cores; a smaller network, same for every
-#: method). *tiny* = tests and CI regression (a few seconds). quick keeps the paper's lr 1e-3: at 3e-3
-#: the Softplus(beta=100) SDF network collapsed to a constant on an open shape (loss 0.0134 -> 0.0139,
-#: no surface), while 1e-3 fits it (-> 0.0033). tiny starts at 3e-3 (200 steps are too few otherwise).
-#: *cpu* = the grid backbone at CPU size (levels 16/32/64 x 4
-#: channels, raw xyz concatenated, 3-layer 64-wide Softplus head, Adam 1e-2, batch 4,096, 1M
-#: samples), with both learning rates decaying by cosine to 1/100 at the last step (a constant lr
-#: hurt SALS in that probe); the grid trains with torch's fused AdamW: steps measured 12-27 ms each on
-#: one core (UDF, with its second-order loss, the slowest). Steps: 2,000, calibrated for all methods
-#: together by a sweep of 1,000 / 2,000 / 4,000 steps on 3 ABC parts (128^3, 300k evaluation
-#: points, one contended core per job), means over the parts, CD x1e3 / ECD x1e2 / EF1 / fit s:
-#: sals 4.66/1.86/0.56 -> 3.43/1.53/0.69/44 -> 2.90/1.39/0.77/98; sdf 2.54/5.72/0.25 ->
-#: 2.52/4.61/0.33/29 -> 2.49/4.15/0.38/62; udf 4.36/3.63/0.34 -> 3.52/3.19/0.41/62 ->
-#: 3.13/3.92/0.41/128; bof 3.75/3.82/0.38 -> 3.84/3.66/0.41/35 -> 4.14/3.57/0.42/61. 2,000 improves
-#: every method's edges over 1,000; 4,000 helps SALS and SDF further but not UDF (ECD) or BOF (CD)
-#: and doubles the fit time past what the default command may take (10 minutes).
-#: Warm-up (5 % of the steps, cpu and tiny-grid): at the full 1e-2 from the first step the SDF head
-#: of ABC 00000009 (a thin part: 45 % of the samples inside, |sdf| <= 0.028 there) died within 50
-#: steps (every Softplus(100) unit negative on every input; loss flat at 0.0138 for 2,000 steps, a
-#: constant output, an empty mesh); with 100 warm-up steps it fits (loss 0.00037), as with a head
-#: lr of 3e-3 (0.00038), which would slow every other method.
-#: The default budget of run_benchmark.py. A finest level of 128 was measured on 3 ABC parts: it
-#: makes the steps ~3x dearer and helps SDF's sharp edges (ECD 4.6e-2 -> 1.6e-2 on 00019203) while
-#: SALS at the paper's o threshold got worse (CD 2.2e-3 -> 5.6e-3): kept at 16/32/64 for every method.
-#: *tiny-grid* = the grid backbone at test/CI size (the neural regression tier): a few seconds a fit.
+#: The budgets (why these values, with the measurements: docs/PERFORMANCE.md, "The cpu budget"):
+#: *paper*: the paper's network and schedule (a GPU budget). *quick*: a 5 x 128 MLP without a grid,
+#: the CPU reference of a plain MLP, at the paper's lr 1e-3. *tiny*: tests (a few seconds a fit).
+#: *cpu*: the default of run_benchmark.py, the same for every method: the grid backbone at CPU size
+#: (levels 16/32/64 x 4 channels, raw xyz concatenated, a 3 x 64 Softplus head), AdamW at 1e-2 for grid
+#: and head after a 5 % linear warm-up, cosine-decayed to 1e-4 at the last of 3,000 steps of 4,096
+#: samples drawn from 1M. *tiny-grid*: the grid backbone at test/CI size (the neural regression tier).
 BUDGETS: Registry[Budget] = Registry("budget")
 for _budget in (
     Budget("paper", depth=9, width=512, iterations=100_000, batch_size=10_000, num_samples=10_000_000,
@@ -135,7 +116,7 @@ for _budget in (
            lr=1e-3, log_every=50),
     Budget("tiny", depth=4, width=64, iterations=200, batch_size=1_024, num_samples=20_000,
            lr=3e-3, log_every=20),
-    Budget("cpu", depth=3, width=64, iterations=2_000, batch_size=4_096, num_samples=1_000_000,
+    Budget("cpu", depth=3, width=64, iterations=3_000, batch_size=4_096, num_samples=1_000_000,
            lr=1e-2, lr_final=1e-4, log_every=50, backbone="grid", grid_resolutions=(16, 32, 64),
            grid_channels=4, lr_grid=1e-2, lr_grid_final=1e-4, fused_adam=True, warmup_fraction=0.05),
     Budget("tiny-grid", depth=3, width=32, iterations=250, batch_size=2_048, num_samples=100_000,

@@ -88,7 +88,7 @@ def test_cpu_budget_is_the_grid_backbone_with_decaying_learning_rates():
     cpu = BUDGETS["cpu"]
     assert (cpu.backbone, cpu.grid_resolutions, cpu.grid_channels) == ("grid", (16, 32, 64), 4)
     assert (cpu.depth, cpu.width, cpu.fused_adam) == (3, 64, True)
-    assert (cpu.batch_size, cpu.num_samples) == (4_096, 1_000_000)
+    assert (cpu.batch_size, cpu.num_samples, cpu.iterations) == (4_096, 1_000_000, 3_000)
     model = make_network(6, 2, **cpu.network_config())
     assert isinstance(model, GridNetwork) and model.config["grid_resolutions"] == (16, 32, 64)
     head, grid = parameter_groups(model, cpu)

@@ -88,7 +88,7 @@ def build_parser() -> argparse.ArgumentParser:
     a("--mode", choices=MODES, help="neural (default): fit a network per shape and method, extract from it; "
                                     "oracle: extract from the exact field (no fitting; isolates extraction error)")
     a("--budget", metavar="NAME", help="fitting budget, the same for every method: cpu (default; feature-grid "
-                                       "backbone, 2,000 steps: a fit in about a minute on 2 CPU cores), quick (a small MLP, "
+                                       "backbone, 3,000 steps: a fit in under a minute on one CPU core), quick (a small MLP, "
                                        "the CPU reference without the grid), paper (the paper's 9 x 512 MLP, 100k "
                                        "steps: a GPU budget), tiny and tiny-grid (tests and CI)")
     a("--grid", type=int, metavar="N", help=f"grid points per axis on [-1,1] (default 128; >= {MIN_GRID}, bounded "
