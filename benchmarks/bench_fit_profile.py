@@ -5,6 +5,8 @@ Print the table (one torch thread, the *cpu* budget, medians of interleaved repe
 Compare whole steps with the network code of another commit (its ``methods/network.py``, batches
 gathered by advanced indexing as that loop did), interleaved in one process:
     .venv/bin/python -m benchmarks.bench_fit_profile --against a46de88
+Steps per second of the machine, 2 one-thread processes side by side against one 2-thread process:
+    .venv/bin/python -m benchmarks.bench_fit_profile --throughput 2
 or as pytest-benchmark (one whole step per method):
     .venv/bin/pytest benchmarks/bench_fit_profile.py -o python_files='bench_*.py' --benchmark-enable -q
 
@@ -259,13 +261,57 @@ def step_against(method_name: str, network_module, rounds: int = 60) -> dict:
     return {**ms, "speed-up": ms["then"] / ms["now"]}
 
 
+def _steps_per_second(method_name: str, threads: int, steps: int, start) -> float:
+    """Steps per second of ``steps`` whole steps with ``threads`` torch threads, after ``start`` (a
+    multiprocessing Event: the processes of one measurement start together)."""
+    torch.set_num_threads(threads)
+    p = Profile(method_name)
+    p.step()
+    start.wait()
+    t = time.perf_counter()
+    for _ in range(steps):
+        p.step()
+    return steps / (time.perf_counter() - t)
+
+
+def throughput(method_name: str, steps: int = 300, cores: int = 2) -> dict:
+    """Steps per second of the machine: ``cores`` processes of one thread side by side (what the
+    ``auto`` executor runs) against one process of ``cores`` threads (what a single job may use)."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    ctx = mp.get_context("spawn")
+    with ctx.Manager() as manager, ProcessPoolExecutor(cores, mp_context=ctx) as pool:
+        start = manager.Event()
+        futures = [pool.submit(_steps_per_second, method_name, 1, steps, start) for _ in range(cores)]
+        time.sleep(5.0)  # every worker built its data
+        start.set()
+        side_by_side = sum(f.result() for f in futures)
+        start = manager.Event()
+        future = pool.submit(_steps_per_second, method_name, cores, steps, start)
+        time.sleep(5.0)
+        start.set()
+        one = future.result()
+    return {"processes": side_by_side, "threads": one, "ratio": side_by_side / one}
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--rounds", type=int, default=60)
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
     parser.add_argument("--against", metavar="REV", help="compare whole steps with the network code of git REV")
+    parser.add_argument("--throughput", type=int, metavar="CORES",
+                        help="steps per second of CORES one-thread processes side by side against one process of "
+                             "CORES threads")
     args = parser.parse_args(argv)
+    if args.throughput:
+        print(f"| method | {args.throughput} processes x 1 thread, steps/s | 1 process x {args.throughput} threads, "
+              f"steps/s | ratio |\n|---|---|---|---|")
+        for m in args.methods:
+            r = throughput(m, cores=args.throughput)
+            print(f"| {m} | {r['processes']:.1f} | {r['threads']:.1f} | {r['ratio']:.2f}x |")
+        return
     torch.set_num_threads(args.threads)
     if args.against:
         module = network_module_at(args.against)

@@ -336,40 +336,17 @@ class KNNBudget:
         return asdict(self)
 
 
-#: *paper* = the paper's K-NN network (K = 20; encoders 4 -> 256, 4 x 256, 256 -> 256; head 512 -> 256,
-#: 4 x 256, 256 -> out; batches of 4 shapes x 5,120 samples, each item with 40k input points;
-#: AdamW 1e-3 constant, 10k steps; 100 training shapes, 1M labelled samples and 1M surface points
-#: each; GPU scale).
-#: *cpu* = the budget of a 2-core run: one learned method trains in <= ~20 min. Same K and input
-#: cloud size as the paper (the local encoder sees the neighbourhood density it is tested at), a
-#: network of width 64 with 2 hidden layers in each encoder and in the head, batches of 4 shapes x
-#: 1,024 samples. Measured: one training step of the segment network at these sizes (forward, loss of
-#: backward, AdamW) took 0.47-0.63 s on one thread (1.6-2.1 steps/s, on a 2-core
-#: machine shared with a benchmark run), plus 0.04 s for the batch's 4 KD-tree searches (40k points,
-#: 1,024 midpoints each): 1,500 steps are 12.5-17 min; the point networks (one encoder) are cheaper.
-#: Its training set: 24 built-in parts (8 per variant), pools of 200k labelled samples and 200k
-#: surface points per shape (1,500 steps x 4 items x 1,024 samples draw each pooled sample ~1.3
-#: times over 24 parts; a 40k cloud is a fifth of the point pool). Measured with
-#: :mod:`methods.knn_training` (one thread, shared 2-core machine): a full step with its data
-#: (4 item draws, KD-trees, gathers: 0.04-0.06 s) took 0.61 s for the segment network, 0.33 s for the
-#: point network; labelling 200k samples took 0.05-0.2 s a shape for segments, 0.5-1.5 s for the UDF
-#: and 1.6-4 s for the winding numbers of occ-knn (15 s on a 109k-face Thingi10K mesh): ~1.5 min
-#: for 24 parts + the 5 Thingi10K meshes, so the dearest method (segments, 15 min of steps) and the
-#: dearest labelling (occupancy: 8 min of steps + ~2 min of labels) both stay within ~20 min.
-#: Measured end to end (``run_benchmark.py train --threads 1``, two trainings side by side on the 2
-#: cores, so each step shares memory bandwidth): sals-knn 1,317 s of steps (0.88 s a step, final
-#: loss 0.91 from 2.2), udf-knn 738 s (0.0010 from 0.014), occ-knn 622 s (BCE 0.59: see
-#: methods/occ_knn.py), plus 1-2 min of labelling each: the segment network overshoots 20 min by ~10%
-#: when it shares the machine.
-#: *tiny* = tests (seconds): K = 16, width 32, one hidden layer, lr 3e-3, 400 steps of 2 x 256
-#: samples, 4 parts, pools of 20k samples and 20k points, clouds of 10k points. The cloud size
-#: costs almost nothing (one KD-tree per item; the network sees K points per sample) but decides
-#: whether the segment network can learn at all: its s needs the local surface located to a
-#: fraction of a segment's length (~0.01), which 2,000 points on a part (spacing ~0.05) do not
-#: give. Measured on the held-out cube of tests/test_knn_methods.py at grid 64 (the test itself
-#: uses 32): K = 8 and 2k-point
-#: clouds, 300 steps: CD 0.039 with every band edge "hit" (the untrained network: 0.042); K = 16 and
-#: 10k points, 400 steps: CD 0.013 in ~10 s of training.
+#: The K-NN budgets (the measurements behind them: docs/PERFORMANCE.md, "K-NN training"):
+#: *paper*: the paper's K-NN network (K = 20; encoders 4 -> 256, 4 x 256, 256 -> 256; head 512 -> 256,
+#: 4 x 256, 256 -> out; batches of 4 shapes x 5,120 samples, each item with 40k input points; AdamW
+#: 1e-3 constant, 10k steps; 100 training shapes, 1M labelled samples and 1M surface points each; GPU
+#: scale). *cpu*: one learned method trains in about 20 min on a 2-core machine: the paper's K and
+#: cloud size (the local encoder sees the density it is tested at), width 64 with 2 hidden layers in
+#: each encoder and the head, batches of 4 shapes x 1,024 samples, 1,500 steps, 24 built-in training
+#: parts with pools of 200k samples and 200k surface points. *tiny*: tests (seconds): K = 16, width 32,
+#: one hidden layer, lr 3e-3, 400 steps of 2 x 256 samples, 4 parts, pools of 20k, clouds of 10k points
+#: (fewer points do not locate the surface to a fraction of a segment's length: the segment network
+#: then cannot learn its s).
 KNN_BUDGETS: Registry[KNNBudget] = Registry("knn budget")
 
 #: K-NN budget values a run may override (``--budget-param``, sweep keys ``budget.NAME`` of the

@@ -19,13 +19,10 @@ raises. Training parts are renamed ``train<seed>_<name>`` so no name reads like 
 Then every mesh of each ``extra_dirs`` folder (the Thingi10K meshes of ``../shared/data/thingi10k``),
 loaded in the canonical frame by the ``meshes`` dataset (and checked against the same hashes).
 
-Generation cost, measured (one thread, on a 2-core machine shared with a benchmark run): 0.02-0.76 s
-a part, 12 s for 200 parts (1.8k-23k faces, median 6k); the check generates up to 3 seed-0 shapes
-per index (count 200: 600 shapes, ~35 s). Both are cached per process (:func:`functools.lru_cache`
-on (index, kind, seed): the training shapes, ~0.2 MB each, and only the (hash, name) of the test
-shapes), so a second call (the cache key of the weights, then the training) generates nothing; the
-list itself is built eagerly, since every shape is labelled anyway. At seed 1, index 50's
-non-manifold pair finds no piercing placement; that index is the closed part.
+Generation is cached per process (:func:`functools.lru_cache` on (index, kind, seed): the training
+shapes, and only the (hash, name) of the test shapes), so a second call (the cache key of the
+weights, then the training) generates nothing; the list itself is built eagerly, since every shape
+is labelled anyway. Costs: docs/PERFORMANCE.md, "K-NN training".
 
 Pools (:class:`TrainingPools`)
 ------------------------------
@@ -37,22 +34,6 @@ area-uniform surface points (:func:`benchmark.surface.sample_surface`), everythi
 draws of a shape come from its own numpy Generator, ``SeedSequence(seed).spawn(2)[0].spawn(n)[i]``
 for shape ``i`` of ``n``: the same (shapes, budget, seed) gives the same pools, in any process.
 Non-finite labels raise :class:`methods.fitting.FittingError` naming the shape.
-
-Labelling cost per shape, measured (one thread, shared machine; seconds for 200k / 1M samples):
-
-=========================  =======  =========  =========  ================
-shape (faces)              sampler  segments   UDF        occupancy (w)
-=========================  =======  =========  =========  ================
-built-in closed (5.6k)     0.07/0.4 0.05/0.23  0.55/2.6   1.7/4.8
-built-in open (5.3k)       0.08/0.3 0.07/0.22  0.45/2.2   3.8/19.6
-built-in non-manifold (6k) 0.10/0.4 0.06/0.29  0.59/2.8   1.6/10.6
-built-in non-manif. (21k)  0.07/0.4 0.07/0.35  1.2/6.7    4.1/16.8
-Thingi10K 73133 (109k)     0.21/0.4 0.20/0.58  1.5/7.1    14.8/65
-=========================  =======  =========  =========  ================
-
-Segments (embree) are cheap; the exact winding number of ``occ-knn`` dominates (crossing counts,
-dearer on open meshes, whose boundary cone libigl evaluates exactly). The surface pool adds
-0.04-0.36 s.
 
 Batches and steps (:func:`train`)
 ---------------------------------
@@ -75,13 +56,6 @@ Seeding: ``seed`` seeds torch's generator before the network is built (its initi
 and the batch Generator ``SeedSequence(seed).spawn(2)[1]`` (shapes, clouds, samples of every
 step); pools built inside :func:`train` use the same ``seed``. On the CPU the same seed gives the
 same weights bit for bit (same thread count; the KD-tree is exact and deterministic).
-
-Cost of a step, measured at the ``cpu`` budget (one thread, shared machine; pools of 200k): 0.61 s
-for the segment network, 0.33 s for the point network, of which the step's data (4 items: a 40k
-draw from the point pool, 0.8 ms even from 1M; 1,024 samples; one KD-tree and query; the gathers)
-is 0.04-0.06 s: the network's forward/backward dominates. With the labelling table above the
-``cpu`` budget trains any of the three methods in <= ~20 min (the budget's note in
-:mod:`methods.knn_network`).
 
 Weights: :func:`knn_model_to_bytes` / :func:`knn_model_from_bytes` (the network rebuilt by
 ``make_knn_network(**config)``); :func:`training_set_digest` names a training set for the cache key
