@@ -28,8 +28,10 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def oracle_args(out: Path, cache: Path, *extra: str) -> list[str]:
+    """A small oracle run; jobs run in the driver (the default executor has its tests in test_run_executors)."""
     return ["--methods", "test_sdf", "test_occ", "--mode", "oracle", "--grid", "32", "--eval-points", "20000",
-            "--limit", "2", "--out", str(out), "--cache-dir", str(cache), "--plugin", PLUGIN, "--quiet", *extra]
+            "--limit", "2", "--out", str(out), "--cache-dir", str(cache), "--plugin", PLUGIN, "--quiet",
+            "--executor", "local", *extra]
 
 
 def read_results(out: Path) -> pd.DataFrame:

@@ -11,6 +11,7 @@ is not installed.
 
 from __future__ import annotations
 
+import json
 import os
 import time
 from dataclasses import dataclass
@@ -204,6 +205,19 @@ def _check_table(df: pd.DataFrame) -> None:
 
 def test_local_table_has_the_failure_recorded(local_table):
     _check_table(local_table[0])
+
+
+def test_default_executor_runs_process_workers_and_gives_the_local_table(mesh_dir, tmp_path, local_table, monkeypatch):
+    """No --executor: on a CPU with two physical cores or more the jobs run in one process per core
+    (at least 2 here), the table is the local one, config.json and timing.md name how they ran."""
+    from benchmark.run import executors
+
+    monkeypatch.setattr(executors, "physical_cores", lambda: 2)
+    df, _ = _run(mesh_dir, tmp_path / "run", tmp_path / "cache")
+    pd.testing.assert_frame_equal(_stable(df), _stable(local_table[0]))
+    record = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert record["execution"] == {"executor": "process", "workers": 2, "threads_per_job": 1}
+    assert "executor process, 2 workers x 1 torch thread" in (tmp_path / "run" / "timing.md").read_text()
 
 
 @pytest.mark.slow

@@ -29,7 +29,7 @@ REPO = Path(__file__).resolve().parents[1]
 def neural_args(out: Path, cache: Path, *extra: str) -> list[str]:
     return ["--methods", "test_sdf", "--mode", "neural", "--budget", "tiny", "--grid", "24", "--eval-points", "5000",
             "--limit", "1", "--out", str(out), "--cache-dir", str(cache), "--plugin", PLUGIN, "--quiet",
-            "--threads", "1", *extra]
+            "--threads", "1", "--executor", "local", *extra]  # the default executor: test_run_executors
 
 
 def results(out: Path) -> pd.DataFrame:
