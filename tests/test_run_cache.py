@@ -61,7 +61,8 @@ def test_damaged_weights_are_refitted_not_used(fakes, tmp_path):
     """Flipping 64 bytes of a cached .pt must not load silently (it once did: SDF CD 0.127 -> 0.529)."""
     cache = tmp_path / "cache"
     args = ["--methods", "test_sdf", "--mode", "neural", "--budget", "tiny", "--grid", "24", "--eval-points", "5000",
-            "--limit", "1", "--cache-dir", str(cache), "--plugin", PLUGIN, "--quiet", "--threads", "1"]
+            "--limit", "1", "--cache-dir", str(cache), "--plugin", PLUGIN, "--quiet", "--threads", "1",
+            "--executor", "local"]
     assert main(args + ["--out", str(tmp_path / "a")]) == 0
     for mesh in (cache / "meshes").iterdir():  # force the next run back to the weights
         mesh.unlink()
