@@ -39,7 +39,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from benchmarks.bench_network import _sphere_data
+from benchmarks.bench_network import _interleaved, _sphere_data
 from methods.base import get_method
 from methods.fitting import BUDGETS, gather_rows, make_optimizer
 from methods.network import SEGMENT_SCALE, make_network
@@ -152,17 +152,9 @@ class Profile:
 
 
 def _median_ms(closures: dict, rounds: int) -> dict:
-    """Median milliseconds of each closure, called round by round in turn (after two warm-ups)."""
-    times = {key: [] for key in closures}
-    for f in closures.values():
-        f()
-        f()
-    for _ in range(int(rounds)):
-        for key, f in closures.items():
-            t = time.perf_counter()
-            f()
-            times[key].append(time.perf_counter() - t)
-    return {key: 1e3 * float(np.median(v)) for key, v in times.items()}
+    """Median milliseconds of each closure, calls interleaved round by round
+    (:func:`benchmarks.bench_network._interleaved`)."""
+    return {key: 1e3 * seconds for key, seconds in _interleaved(closures, rounds).items()}
 
 
 def profile(method_name: str, rounds: int = 60, budget_name: str = "cpu") -> dict:

@@ -335,7 +335,6 @@ def train(method, shapes: Sequence[Shape], budget: str | KNNBudget, seed: int = 
     seeded_generator(seed, device)  # torch's global seed: the initialisation below
     rng = np.random.default_rng(_streams(seed)[1])
     model = make_knn_network(method.network_kind, out_dim=method.output_dim, **budget.network_config()).to(device)
-    model.train()
     optimizer = torch.optim.AdamW(model.parameters(), lr=budget.lr, weight_decay=budget.weight_decay)
     needs_grad = method.loss_needs_input_grad
     T = int(budget.steps)

@@ -69,7 +69,7 @@ def device_text(context: dict) -> str:
 
 def execution_text(context: dict) -> str:
     """How the jobs ran: 'executor process, 2 workers x 1 torch thread'; '' where not recorded."""
-    execution = context.get("execution") or {}
+    execution = context["execution"] or {}
     if not execution.get("executor"):
         return ""
     workers, threads = execution.get("workers"), execution.get("threads_per_job")

@@ -314,7 +314,7 @@ class RayExecutor:
         self.cluster_gpus = float(resources.get("GPU", 0.0))
         self.cluster_cpus = float(resources.get("CPU", 0.0))
         self.workers = max(1, int(self.cluster_cpus // max(self.cpus_per_job, 1e-9)))  # tasks in flight at most
-        self.threads = max(1, int(self.cpus_per_job))
+        self.threads = max(1, int(self.cpus_per_job))  # torch threads of each task: its CPU share
         self._remote = ray.remote(_ray_call)
 
     def resources_for(self, spec) -> dict:
@@ -327,8 +327,8 @@ class RayExecutor:
         pending = {}
         for spec in specs:
             res = self.resources_for(spec)
-            threads = max(1, int(res["num_cpus"]))
-            ref = self._remote.options(max_retries=self.retries, retry_exceptions=False, **res).remote(fn, spec, threads)
+            ref = self._remote.options(max_retries=self.retries, retry_exceptions=False, **res).remote(fn, spec,
+                                                                                                      self.threads)
             pending[ref] = spec
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1, timeout=1.0)
