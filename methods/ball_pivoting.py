@@ -12,7 +12,7 @@ import numpy as np
 from benchmark.timing import stage
 from methods.base import Extraction, PointCloudMethod, register_method
 from methods.meshlab import current_mesh, oriented_point_set
-from methods.params import Param
+from benchmark.params import Param
 
 
 @register_method

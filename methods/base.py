@@ -26,7 +26,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from benchmark.registry import Registry
-from methods.params import Param, ParamError
+from benchmark.params import Param, ParamError
 
 
 @dataclass

@@ -19,7 +19,7 @@ import torch.nn.functional as F
 
 from methods.base import Extraction, Method, register_method
 from methods.marching_cubes import marching_cubes_grid
-from methods.params import Param
+from benchmark.params import Param
 from methods import query
 
 

@@ -33,10 +33,10 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
+from benchmark.params import Param, check_fields, params_of, setting, with_overrides
 from benchmark.registry import Registry
 from methods.device import get_device, seeded_generator
 from methods.network import BACKBONES, GridNetwork, make_network
-from methods.params import Param, with_overrides
 from methods.training_loop import FittingError, run_steps
 
 
@@ -59,32 +59,32 @@ class Budget:
     rates linearly up to their schedule (:func:`learning_rate`); 0 = none (the MLP budgets).
     """
 
-    name: str
-    depth: int
-    width: int
-    iterations: int
-    batch_size: int
-    num_samples: int
-    beta: float = 100.0
-    lr: float = 1e-3
-    lr_final: float = 1e-5
-    weight_decay: float = 0.01  # torch.optim.AdamW's default
-    activation: str = "softplus"
-    log_every: int = 50
-    backbone: str = "mlp"
-    grid_resolutions: tuple[int, ...] = ()
-    grid_channels: int = 0
-    lr_grid: float = 0.0
-    lr_grid_final: float = 0.0
-    fused_adam: bool = False
-    warmup_fraction: float = 0.0
+    name: str = setting(Param(kind=str, help="budget name"))
+    depth: int = setting(Param(kind=int, help="linear layers of the MLP (the grid backbone's head)", ge=2),
+                         override=True)
+    width: int = setting(Param(kind=int, help="hidden width of the MLP", ge=1), override=True)
+    iterations: int = setting(Param(kind=int, help="optimizer steps", ge=1), override=True)
+    batch_size: int = setting(Param(kind=int, help="samples per step", ge=1), override=True)
+    num_samples: int = setting(Param(kind=int, help="training samples M drawn by the shared sampler", ge=100),
+                               override=True)
+    beta: float = setting(Param(100.0, "Softplus sharpness", gt=0))
+    lr: float = setting(Param(1e-3, "MLP learning rate at the first step", gt=0), override=True)
+    lr_final: float = setting(Param(1e-5, "MLP learning rate at the last step", ge=0), override=True)
+    weight_decay: float = setting(Param(0.01, "AdamW weight decay of the MLP (torch's default)", ge=0), override=True)
+    activation: str = setting(Param("softplus", "hidden activation of the MLP"))
+    log_every: int = setting(Param(50, "steps between loss checks and progress reports", ge=1))
+    backbone: str = setting(Param("mlp", "network backbone", choices=BACKBONES))
+    grid_resolutions: tuple[int, ...] = setting(Param((), "grid points per axis of each feature-grid level",
+                                                      kind=tuple, item=int, ge=2))
+    grid_channels: int = setting(Param(0, "features per grid level", ge=0), override=True)
+    lr_grid: float = setting(Param(0.0, "feature-grid learning rate at the first step", ge=0), override=True)
+    lr_grid_final: float = setting(Param(0.0, "feature-grid learning rate at the last step", ge=0), override=True)
+    fused_adam: bool = setting(Param(False, "torch's fused AdamW kernel"))
+    warmup_fraction: float = setting(Param(0.0, "fraction of the steps that ramp the learning rates up linearly",
+                                           ge=0, lt=1), override=True)
 
     def __post_init__(self):
-        if not 0.0 <= self.warmup_fraction < 1.0:
-            raise ValueError(f"budget '{self.name}': warmup_fraction must be in [0, 1), got {self.warmup_fraction}")
-        if self.backbone not in BACKBONES:
-            raise ValueError(f"budget '{self.name}': unknown backbone '{self.backbone}'; known: {', '.join(BACKBONES)}")
-        object.__setattr__(self, "grid_resolutions", tuple(int(r) for r in self.grid_resolutions))
+        check_fields(self, f"budget '{self.name}'")
         grid = (self.grid_resolutions, self.grid_channels, self.lr_grid, self.lr_grid_final)
         if self.backbone == "mlp" and any(grid):
             raise ValueError(f"budget '{self.name}': grid settings given for the 'mlp' backbone")
@@ -127,21 +127,8 @@ for _budget in (
 
 
 #: Budget settings a run may override (``--budget-param NAME=VALUE``, sweep keys ``budget.NAME``),
-#: typed and range-checked like method parameters; the defaults shown are only the types' carriers.
-BUDGET_PARAMS: dict[str, Param] = {
-    "iterations": Param(1, "optimizer steps", ge=1),
-    "batch_size": Param(1, "samples per step", ge=1),
-    "num_samples": Param(1, "training samples M drawn by the shared sampler", ge=100),
-    "depth": Param(1, "linear layers of the MLP (the grid backbone's head)", ge=2),
-    "width": Param(1, "hidden width of the MLP", ge=1),
-    "lr": Param(1.0, "MLP learning rate at the first step", gt=0),
-    "lr_final": Param(1.0, "MLP learning rate at the last step", ge=0),
-    "weight_decay": Param(1.0, "AdamW weight decay of the MLP", ge=0),
-    "lr_grid": Param(1.0, "feature-grid learning rate at the first step", gt=0),
-    "lr_grid_final": Param(1.0, "feature-grid learning rate at the last step", ge=0),
-    "grid_channels": Param(1, "features per grid level", ge=1),
-    "warmup_fraction": Param(0.5, "fraction of the steps that ramp the learning rates up linearly", ge=0, lt=1),
-}
+#: typed and range-checked by the fields' own :class:`Param`.
+BUDGET_PARAMS: dict[str, Param] = params_of(Budget, override=True)
 
 
 def get_budget(budget: str | Budget, overrides: dict | None = None) -> Budget:

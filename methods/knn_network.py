@@ -59,8 +59,8 @@ import torch
 from pykdtree.kdtree import KDTree
 from torch import nn
 
+from benchmark.params import Param, check_fields, params_of, setting
 from benchmark.registry import Registry
-from methods.params import Param
 from methods.network import OUTPUT_INIT_SCALE
 
 __all__ = ["NEGATIVE_SLOPE", "KINDS", "knn_neighbourhoods", "segment_neighbourhoods", "LocalEncoder",
@@ -295,37 +295,31 @@ class KNNBudget:
     ``pool_points >= points_per_item``).
     """
 
-    name: str
-    k: int
-    encoder_width: int
-    encoder_depth: int
-    head_width: int
-    head_depth: int
-    steps: int
-    shapes_per_batch: int
-    samples_per_item: int
-    points_per_item: int
-    lr: float = 1e-3
-    weight_decay: float = 0.01
-    log_every: int = 100
-    training_shapes: int = 100
-    pool_samples: int = 1_000_000
-    pool_points: int = 1_000_000
+    name: str = setting(Param(kind=str, help="budget name"))
+    k: int = setting(Param(kind=int, help="neighbours per query", ge=1), override=True)
+    encoder_width: int = setting(Param(kind=int, help="width of the local encoders", ge=1), override=True)
+    encoder_depth: int = setting(Param(kind=int, help="hidden layers of the local encoders", ge=0), override=True)
+    head_width: int = setting(Param(kind=int, help="width of the regression head", ge=1), override=True)
+    head_depth: int = setting(Param(kind=int, help="hidden layers of the regression head", ge=0), override=True)
+    steps: int = setting(Param(kind=int, help="optimizer steps", ge=1), override=True)
+    shapes_per_batch: int = setting(Param(kind=int, help="training shapes per batch", ge=1))
+    samples_per_item: int = setting(Param(kind=int, help="labelled samples per shape of a batch", ge=1),
+                                    override=True)
+    points_per_item: int = setting(Param(kind=int, help="input points per shape of a batch", ge=1), override=True)
+    lr: float = setting(Param(1e-3, "AdamW learning rate (constant)", gt=0), override=True)
+    weight_decay: float = setting(Param(0.01, "AdamW weight decay (torch's default)", ge=0))
+    log_every: int = setting(Param(100, "steps between loss reports", ge=1))
+    training_shapes: int = setting(Param(100, "built-in training parts", ge=1), override=True)
+    pool_samples: int = setting(Param(1_000_000, "labelled samples per training shape", ge=1), override=True)
+    pool_points: int = setting(Param(1_000_000, "surface points per training shape", ge=1), override=True)
 
     def __post_init__(self):
-        for field in ("k", "encoder_width", "head_width", "steps", "shapes_per_batch", "samples_per_item",
-                      "points_per_item", "log_every", "training_shapes", "pool_samples", "pool_points"):
-            if int(getattr(self, field)) < 1:
-                raise ValueError(f"knn budget '{self.name}': {field} must be >= 1, got {getattr(self, field)}")
-        if self.encoder_depth < 0 or self.head_depth < 0:
-            raise ValueError(f"knn budget '{self.name}': depths must be >= 0")
+        check_fields(self, f"knn budget '{self.name}'")
         if self.points_per_item < self.k:
             raise ValueError(f"knn budget '{self.name}': points_per_item {self.points_per_item} < k {self.k}")
         if self.pool_points < self.points_per_item:
             raise ValueError(f"knn budget '{self.name}': pool_points {self.pool_points} < points_per_item "
                              f"{self.points_per_item} (an item's cloud is drawn without replacement)")
-        if not self.lr > 0 or self.weight_decay < 0:
-            raise ValueError(f"knn budget '{self.name}': lr must be > 0 and weight_decay >= 0")
 
     def network_config(self) -> dict:
         """The network sizes, for ``make_knn_network(kind, out_dim=..., **budget.network_config())``."""
@@ -350,21 +344,8 @@ class KNNBudget:
 KNN_BUDGETS: Registry[KNNBudget] = Registry("knn budget")
 
 #: K-NN budget values a run may override (``--budget-param``, sweep keys ``budget.NAME`` of the
-#: reconstruct task, e.g. the paper's K ablation ``budget.k=10,20,50``); typed like method parameters.
-KNN_BUDGET_PARAMS: dict[str, Param] = {
-    "k": Param(1, "neighbours per query", ge=1),
-    "steps": Param(1, "optimizer steps", ge=1),
-    "encoder_width": Param(1, "width of the local encoders", ge=1),
-    "encoder_depth": Param(1, "hidden layers of the local encoders", ge=0),
-    "head_width": Param(1, "width of the regression head", ge=1),
-    "head_depth": Param(1, "hidden layers of the regression head", ge=0),
-    "samples_per_item": Param(1, "labelled samples per shape of a batch", ge=1),
-    "points_per_item": Param(1, "input points per shape of a batch", ge=1),
-    "training_shapes": Param(1, "built-in training parts", ge=1),
-    "pool_samples": Param(1, "labelled samples per training shape", ge=1),
-    "pool_points": Param(1, "surface points per training shape", ge=1),
-    "lr": Param(1.0, "AdamW learning rate (constant)", gt=0),
-}
+#: reconstruct task, e.g. the paper's K ablation ``budget.k=10,20,50``), typed by the fields' own Params.
+KNN_BUDGET_PARAMS: dict[str, Param] = params_of(KNNBudget, override=True)
 for _budget in (
     KNNBudget("paper", k=20, encoder_width=256, encoder_depth=4, head_width=256, head_depth=4, steps=10_000,
               shapes_per_batch=4, samples_per_item=5_120, points_per_item=40_000, lr=1e-3, log_every=100,

@@ -102,8 +102,8 @@ class TrainingSetError(ValueError):
 def get_knn_budget(budget: str | KNNBudget, overrides: dict | None = None) -> KNNBudget:
     """A :class:`KNNBudget` by name in :data:`KNN_BUDGETS` (or the budget itself), with ``overrides``
     of :data:`methods.knn_network.KNN_BUDGET_PARAMS` applied (typed, checked)."""
+    from benchmark.params import with_overrides
     from methods.knn_network import KNN_BUDGET_PARAMS
-    from methods.params import with_overrides
 
     base = budget if isinstance(budget, KNNBudget) else KNN_BUDGETS.get(budget)
     return with_overrides(base, overrides, KNN_BUDGET_PARAMS, "budget")

@@ -30,7 +30,7 @@ from benchmark.timing import stage
 from methods.base import Extraction, LearnedPointCloudMethod, register_method
 from methods.knn_query import band_points, evaluate_knn, knn_k
 from methods.marching_cubes import marching_cubes_grid
-from methods.params import Param
+from benchmark.params import Param
 from methods.query import point_inputs
 
 

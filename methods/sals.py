@@ -37,7 +37,7 @@ import torch.nn.functional as F
 
 from benchmark.timing import record, stage
 from methods.base import Extraction, Method, register_method
-from methods.params import Param
+from benchmark.params import Param
 from methods import query
 
 #: Weight of the s term.

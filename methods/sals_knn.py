@@ -19,7 +19,7 @@ from benchmark.grid import spacing
 from benchmark.timing import record, stage
 from methods.base import Extraction, LearnedPointCloudMethod, register_method
 from methods.knn_query import band_edges, evaluate_knn, knn_k
-from methods.params import Param
+from benchmark.params import Param
 from methods.query import edge_inputs
 from methods.sals import nearer_endpoint_normals, segment_loss, segment_targets
 

@@ -16,7 +16,7 @@ import torch
 
 from methods.base import Extraction, Method, register_method
 from methods.marching_cubes import marching_cubes_grid
-from methods.params import Param
+from benchmark.params import Param
 from methods import query
 
 #: Loss clamp of the signed distance, canonical units.

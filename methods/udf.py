@@ -26,7 +26,7 @@ import torch.nn.functional as F
 from benchmark.grid import spacing
 from benchmark.timing import record, stage
 from methods.base import Extraction, Method, register_method
-from methods.params import Param
+from benchmark.params import Param
 from methods import query
 
 #: Loss clamp of the distance, canonical units.

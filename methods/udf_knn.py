@@ -17,7 +17,7 @@ from benchmark.grid import spacing
 from benchmark.timing import record, stage
 from methods.base import Extraction, LearnedPointCloudMethod, register_method
 from methods.knn_query import band_points, evaluate_knn, knn_k
-from methods.params import Param
+from benchmark.params import Param
 from methods.query import point_inputs
 
 #: Training targets and predictions are compared clamped at this distance (canonical units).

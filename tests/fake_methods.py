@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from methods.base import METHODS, Extraction, Method
-from methods.params import Param
+from benchmark.params import Param
 
 PLUGIN = "tests.fake_methods:register_fakes"
 

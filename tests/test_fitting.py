@@ -100,7 +100,7 @@ def test_cpu_budget_is_the_grid_backbone_with_decaying_learning_rates():
 
 
 def test_budget_backbone_settings_are_checked():
-    with pytest.raises(ValueError, match="unknown backbone 'hash'; known: mlp, grid"):
+    with pytest.raises(ValueError, match="budget 'toy': backbone='hash': expected str, one of 'mlp', 'grid'"):
         replace(TOY, backbone="hash")
     with pytest.raises(ValueError, match="grid settings given for the 'mlp' backbone"):
         replace(TOY, grid_channels=4)
@@ -123,7 +123,7 @@ def test_warmup_ramps_linearly_then_follows_the_cosine():
     assert learning_rate(0, 100, 1e-2, 1e-4) == cosine_lr(0, 100, 1e-2, 1e-4)  # no warm-up
     assert BUDGETS["cpu"].warmup_fraction == 0.05 and BUDGETS["tiny-grid"].warmup_fraction == 0.05
     assert all(BUDGETS[name].warmup_fraction == 0.0 for name in ("paper", "quick", "tiny"))
-    with pytest.raises(ValueError, match=r"warmup_fraction must be in \[0, 1\)"):
+    with pytest.raises(ValueError, match=r"budget 'toy': warmup_fraction=1.0: expected float in \[0, 1\)"):
         replace(TOY, warmup_fraction=1.0)
     # the optimizer sees the ramp: after step 0 of a 20 % warm-up the lr is 1/W of the schedule's
     seen = []

@@ -220,5 +220,5 @@ def test_budgets_carry_their_training_set_and_pools():
     assert TINY.training_shapes <= 4
     with pytest.raises(ValueError, match="pool_points 1000 < points_per_item 10000"):
         _budget(pool_points=1_000)
-    with pytest.raises(ValueError, match="training_shapes must be >= 1"):
+    with pytest.raises(ValueError, match="training_shapes=0: expected int in \\[1, inf\\)"):
         _budget(training_shapes=0)

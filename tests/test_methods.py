@@ -13,7 +13,7 @@ from benchmark.sampler import sample_training_data
 from benchmark.timing import StageTimer, stage
 from methods.base import METHODS, Method, available_methods, get_method
 from methods.fitting import BUDGETS, fit
-from methods.params import Param
+from benchmark.params import Param
 from methods.sals import edge_draws
 
 N_POINTS = 30_000  # metric samples: enough to separate sharp from rounded at N = 40

@@ -45,7 +45,7 @@ def test_poisson_runs_as_a_reconstruct_task_end_to_end(tmp_path):
     (["--task", "reconstruct", "--methods", "sals"], "method 'sals' belongs to the encode task"),
     (["--methods", "poisson"], "method 'poisson' belongs to the reconstruct task"),
     (["--pc-points", "1000"], "apply to --task reconstruct"),
-    (["--task", "reconstruct", "--pc-points", "10"], "--pc-points must be >= 100"),
+    (["--task", "reconstruct", "--pc-points", "10"], "--pc-points='10': expected int in [100, inf)"),
     (["--task", "reconstruct", "--mode", "oracle"], "apply to --task encode"),
     (["--task", "reconstruct", "--methods", "udf-knn", "--train-dir", "/nonexistent"], "--train-dir /nonexistent"),
     (["--task", "reconstruct", "--methods", "udf-knn", "--no-cache"], "keep their trained networks in the cache"),

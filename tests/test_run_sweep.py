@@ -98,7 +98,7 @@ def test_budget_params_override_the_budget_and_are_recorded(fakes, tmp_path):
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--sweep", "test_sdf.levle=0,0.01"], "unknown key 'test_sdf.levle'; known keys: grid, eval_points, budget"),
+    (["--sweep", "test_sdf.levle=0,0.01"], "unknown key 'test_sdf.levle'; known keys: budget, grid, eval_points"),
     (["--sweep", "test_sdf.level=0,0.5"], "test_sdf.level='0.5': expected float in (-0.1, 0.1)"),
     (["--sweep", "grid=32,32"], "values must not repeat"),
     (["--sweep", "grid"], "use KEY=V1,V2"),

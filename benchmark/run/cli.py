@@ -19,8 +19,8 @@ import sys
 from pathlib import Path
 from typing import Any, Sequence
 
-from benchmark.run.config import (DEFAULT_PC_POINTS, MIN_EVAL_POINTS, MIN_GRID, MIN_PC_POINTS, MODES, TASKS, ConfigError,
-                                  RunConfig, import_plugins)
+from benchmark.params import ParamError
+from benchmark.run.config import ConfigError, RunConfig, import_plugins
 from benchmark.run.parsing import EXIT_FAILED_TASKS, EXIT_OK, EXIT_REFUSED, OneLineParser
 from benchmark.run.plan import resolve
 from benchmark.run.records import SchemaMismatch
@@ -28,9 +28,6 @@ from benchmark.run.rundir import RunDirectory, check_writable_dir, saved_config
 
 RUNS_ROOT = Path("runs")
 
-#: Command-line destination -> RunConfig field (where the names differ).
-_FIELD_OF = {"list": "list_file", "seed": "seeds", "plugin": "plugins", "method_param": "method_params",
-             "budget_param": "budget_params", "train_dir": "train_dirs"}
 #: Shipped recipes: ``benchmark/recipes/<name>.toml`` (``--recipe NAME``).
 RECIPES_DIR = Path(__file__).resolve().parent.parent / "recipes"
 
@@ -67,103 +64,75 @@ def build_parser() -> argparse.ArgumentParser:
                "~/.cache/salsbench. SALSBENCH_DEVICE=cpu|cuda forces the torch device.",
     )
     a = p.add_argument
+    settings = RunConfig.params()
+
+    def setting(name: str, **kwargs):
+        """The option of RunConfig field ``name``: its help is the field's Param, which also parses
+        its value (:func:`_overrides`), as it parses the same setting from a file or a sweep."""
+        a(flag_of(name), dest=name, help=settings[name].help, **kwargs)
+
     a("--config", metavar="FILE", help="settings from a TOML/JSON file or a run's config.json (options given "
                                        "here override it); with --out NEW it reproduces that run")
-    a("--task", choices=TASKS, help="encode (default): fit a field per shape from its mesh and extract it; "
-                                    "reconstruct: a mesh from a raw point cloud sampled from the GT (no normals)")
-    a("--pc-points", dest="pc_points", type=int, metavar="P",
-      help=f"reconstruct task: points of the input cloud (default {DEFAULT_PC_POINTS:,}, the paper's; "
-           f">= {MIN_PC_POINTS})")
-    a("--pc-noise", dest="pc_noise", type=float, metavar="SIGMA",
-      help="reconstruct task: Gaussian noise sigma added to the input points, canonical units (default 0)")
-    a("--train-dir", dest="train_dir", action="append", metavar="DIR",
-      help="reconstruct task: a folder of extra training meshes for the learned methods (repeatable; default: "
-           "../shared/data/thingi10k where it exists); the built-in training parts are always included")
-    a("--methods", nargs="+", metavar="METHOD", help="methods to run (default: every registered method)")
-    a("--dataset", metavar="NAME", help="dataset: builtin (default; 4 generated CAD-like shapes, no download), "
-                                        "abc, abc-nonmanifold, meshes (any folder of mesh files)")
-    a("--data-dir", dest="data_dir", metavar="DIR", help="folder of mesh files (abc, abc-nonmanifold, meshes)")
-    a("--list", metavar="FILE", help="text file of shape names, one per line (e.g. the SALS ABC test lists)")
-    a("--limit", type=int, metavar="N", help="use only the first N shapes of the dataset")
-    a("--mode", choices=MODES, help="neural (default): fit a network per shape and method, extract from it; "
-                                    "oracle: extract from the exact field (no fitting; isolates extraction error)")
-    a("--budget", metavar="NAME", help="fitting budget, the same for every method: cpu (default; feature-grid "
-                                       "backbone, 3,000 steps: a fit in under a minute on one CPU core), quick (a small MLP, "
-                                       "the CPU reference without the grid), paper (the paper's 9 x 512 MLP, 100k "
-                                       "steps: a GPU budget), tiny and tiny-grid (tests and CI)")
-    a("--grid", type=int, metavar="N", help=f"grid points per axis on [-1,1] (default 128; >= {MIN_GRID}, bounded "
-                                            "by this machine's memory); spacing 2/(N-1) canonical units")
-    a("--eval-points", dest="eval_points", type=int, metavar="N",
-      help=f"surface samples per mesh for the metrics (>= {MIN_EVAL_POINTS}; default: the preset's n, 1,000,000 "
-           "for 'default', 100,000 for 'ndc'); stated in every table caption")
-    a("--metric-preset", dest="metric_preset", metavar="NAME",
-      help="metric protocol: default (canonical frame, Chamfer-L1, F1@0.005/0.01, ECD/EF1) or ndc (NDC's script)")
-    a("--seed", nargs="+", type=int, metavar="S", help="seeds in [0, 2^63) (default 0); each seed is a separate job "
-                                                       "per shape and method (sampling, network init, metric samples)")
+    setting("task", choices=settings["task"].choices)
+    setting("pc_points", metavar="P")
+    setting("pc_noise", metavar="SIGMA")
+    setting("train_dirs", action="append", metavar="DIR")
+    setting("methods", nargs="+", metavar="METHOD")
+    setting("dataset", metavar="NAME")
+    setting("data_dir", metavar="DIR")
+    setting("list_file", metavar="FILE")
+    setting("limit", metavar="N")
+    setting("mode", choices=settings["mode"].choices)
+    setting("budget", metavar="NAME")
+    setting("grid", metavar="N")
+    setting("eval_points", metavar="N")
+    setting("metric_preset", metavar="NAME")
+    setting("seeds", nargs="+", metavar="S")
     a("--out", metavar="DIR", help="run directory (default runs/<YYYYmmdd-HHMMSS>); an existing one is continued")
     a("--resume", action="store_true", help="continue a run with its saved configuration (OUT/config.json; "
                                             "without --out: the latest run under runs/); options given may add "
                                             "methods or seeds or change how it runs, never what it computes")
-    a("--executor", help="auto (default: on a CPU, one process per physical core with one torch thread each when "
-                         "there are two or more tasks; else local), local (in-process, sequential), process "
-                         "(--workers local processes), ray (Ray tasks, local instance or --address cluster)")
-    a("--workers", type=int, metavar="K", help="parallel jobs for auto and process (default: physical cores for "
-                                               "auto, CPU cores for process) and for a local ray instance (its CPU "
-                                               "count); torch threads per job: auto 1, process max(1, cores // K)")
-    a("--address", metavar="ADDR", help="ray cluster to join: 'auto' (a cluster started with `ray start`) or "
-                                        "host:port; without it a local ray instance is started")
-    a("--gpus-per-job", dest="gpus_per_job", type=float, metavar="F",
-      help="ray: GPUs a fitting job asks for when the cluster has GPUs (default 1; fractions allowed, e.g. 0.5)")
-    a("--cpus-per-job", dest="cpus_per_job", type=float, metavar="C", help="ray: CPUs per job (default 1)")
-    a("--threads", type=int, metavar="T",
-      help="torch CPU threads per job (default: 1 for auto's process workers, torch's own (all cores) for local "
-           "and for auto with one task; cores // workers for process; --cpus-per-job for ray)")
-    a("--retries", type=int, metavar="R", help="times a job whose worker died is retried (default 1); "
-                                               "jobs that raise are recorded failed at once")
-    a("--checkpoints", type=_fractions, metavar="F1,F2,...",
-      help="neural mode: also score the network at these fractions of the fit budget, e.g. 0.25,0.5,1 "
-           "(anytime curves: one row per checkpoint in results.db/checkpoints.csv and a plot of each "
-           "metric against fit seconds in the report); off by default; jobs with checkpoints always fit")
-    a("--method-param", dest="method_param", action="append", metavar="METHOD.NAME=VALUE",
-      help="override an extractor parameter, e.g. sals.o_threshold=0.2 or sals.normals=no (repeatable); "
-           "typed and range-checked against the method's parameters")
-    a("--budget-param", dest="budget_param", action="append", metavar="NAME=VALUE",
-      help="override a value of the budget, e.g. num_samples=500000 or iterations=2000 (repeatable; "
-           "typed and range-checked; recorded in config.json and every table caption)")
-    a("--sweep", action="append", metavar="KEY=V1,V2,...",
-      help="run every value of a setting in one run directory (repeatable: the cross product). KEY: grid, "
-           "eval_points, budget, seed, budget.NAME (e.g. budget.num_samples) or METHOD.NAME (e.g. "
-           "sals.o_threshold); values typed like --method-param. Each row records its values in columns "
-           "sweep.KEY; jobs that differ only in extraction settings share one fit; a neural sweep also "
-           "runs its oracle ceiling (see --no-ceiling)")
+    setting("executor")
+    setting("workers", metavar="K")
+    setting("address", metavar="ADDR")
+    setting("gpus_per_job", metavar="F")
+    setting("cpus_per_job", metavar="C")
+    setting("threads", metavar="T")
+    setting("retries", metavar="R")
+    setting("checkpoints", type=_comma_list, metavar="F1,F2,...")
+    setting("method_params", action="append", metavar="METHOD.NAME=VALUE")
+    setting("budget_params", action="append", metavar="NAME=VALUE")
+    setting("sweep", action="append", metavar="KEY=V1,V2,...")
     a("--no-ceiling", dest="ceiling", action="store_const", const=False,
       help="a neural sweep without its oracle ceiling (the same sweep on the exact field)")
     a("--recipe", metavar="NAME", help="a shipped sweep reproducing one of the paper's ablations "
                                        f"({', '.join(recipe_names())}); options given here override it")
-    a("--cache-dir", dest="cache_dir", metavar="DIR", help="cache root (default $SALSBENCH_CACHE or ~/.cache/salsbench)")
-    a("--no-cache", dest="no_cache", action="store_const", const=True,
-      help="do not read or write the weights/mesh/field caches")
-    a("--plugin", action="append", metavar="MODULE",
-      help="import MODULE (or MODULE:FUNCTION, then call it) first, in the driver and every worker, "
-           "to register extra methods or datasets (repeatable)")
-    a("--quiet", action="store_const", const=True, help="no progress bar; one line per finished job (CI logs)")
-    a("--recompute-stale", dest="recompute_stale", action="store_const", const=True,
-      help="in an existing run directory, recompute the finished tasks whose code changed since "
-           "(without it such a run is refused: one directory never mixes two code versions)")
+    setting("cache_dir", metavar="DIR")
+    setting("no_cache", action="store_const", const=True)
+    setting("plugins", action="append", metavar="MODULE")
+    setting("quiet", action="store_const", const=True)
+    setting("recompute_stale", action="store_const", const=True)
     return p
 
 
-def _fractions(text: str) -> tuple[float, ...]:
-    """'0.25,0.5,1' -> (0.25, 0.5, 1.0) (argparse type: a bad value is one line, exit 2)."""
-    try:
-        return tuple(float(t) for t in text.split(",") if t.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated fractions like 0.25,0.5,1, got '{text}'") from None
+#: RunConfig fields whose option is not ``--`` + the field name with dashes.
+_FLAGS = {"list_file": "--list", "seeds": "--seed", "plugins": "--plugin", "train_dirs": "--train-dir",
+          "method_params": "--method-param", "budget_params": "--budget-param"}
+
+
+def flag_of(field: str) -> str:
+    """The command-line option of a RunConfig field."""
+    return _FLAGS.get(field, "--" + field.replace("_", "-"))
+
+
+def _comma_list(text: str) -> tuple[str, ...]:
+    """'0.25,0.5,1' -> ('0.25', '0.5', '1') (typed by the setting's Param when the config is built)."""
+    return tuple(t.strip() for t in text.split(",") if t.strip())
 
 
 def parse_method_params(items: Sequence[str] | None, plugins: Sequence[str]) -> dict[str, dict[str, Any]]:
     """``['sals.o_threshold=0.2']`` -> ``{'sals': {'o_threshold': 0.2}}``, typed by the method's
-    :class:`methods.params.Param` (ConfigError naming the bad item otherwise)."""
+    :class:`benchmark.params.Param` (ConfigError naming the bad item otherwise)."""
     if not items:
         return {}
     import_plugins(plugins)
@@ -189,7 +158,12 @@ def parse_method_params(items: Sequence[str] | None, plugins: Sequence[str]) -> 
 def _overrides(args: argparse.Namespace, plugins: Sequence[str]) -> dict[str, Any]:
     """The RunConfig fields given on the command line (paths made absolute)."""
     cli_only = {"config", "out", "resume", "recipe"}
-    given = {_FIELD_OF.get(k, k): v for k, v in vars(args).items() if v is not None and k not in cli_only}
+    given = {k: v for k, v in vars(args).items() if v is not None and k not in cli_only}
+    settings = RunConfig.params()
+    try:  # typed here too, so that a bad value is named by the option the user typed
+        given.update({k: settings[k].parse(v, flag_of(k)) for k, v in given.items() if settings[k].kind is not dict})
+    except ParamError as exc:
+        raise ConfigError(str(exc)) from None
     for key in ("data_dir", "list_file", "cache_dir"):
         if key in given:
             given[key] = str(Path(given[key]).expanduser().resolve())

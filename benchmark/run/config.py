@@ -24,10 +24,11 @@ import dataclasses
 import json
 import os
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
+from benchmark.params import Param, ParamError, check_fields, params_of, setting
 from benchmark.seeding import MAX_SEED
 
 MODES = ("neural", "oracle")
@@ -65,53 +66,115 @@ def machine_memory_bytes() -> int | None:
         return None
 
 
-def _f(default, role: str, help: str = ""):
-    if isinstance(default, dict):
-        return field(default_factory=dict, metadata={"role": role, "help": help})
-    return field(default=default, metadata={"role": role, "help": help})
+def _setting(role: str, default, help: str, sweep: str | None = None, **param):
+    """A RunConfig field: its :class:`Param` (type, bounds, the ``--help`` text), its role and, for
+    a setting a sweep may vary, the sweep key's name."""
+    return setting(Param(default, help, **param), role=role, sweep=sweep)
 
 
 @dataclass(frozen=True)
 class RunConfig:
-    """What a run computes and how (module docstring). Field types are checked when built."""
+    """What a run computes and how (module docstring). Every field is parsed by its Param when built."""
 
-    task: str = _f("encode", "identity", "benchmark task")
-    dataset: str = _f("builtin", "identity", "dataset registry name")
-    data_dir: str | None = _f(None, "identity", "folder of mesh files")
-    list_file: str | None = _f(None, "identity", "text file of shape names")
-    limit: int | None = _f(None, "identity", "first N shapes of the dataset")
-    mode: str = _f("neural", "identity", "neural (fit) or oracle (exact field)")
-    budget: str | None = _f("cpu", "identity", "fitting budget (neural mode)")
-    grid: int = _f(128, "identity", "grid points per axis on [-1, 1]")
-    metric_preset: str = _f("default", "identity", "metric protocol")
-    eval_points: int | None = _f(None, "identity", "metric samples per mesh (None: the preset's)")
-    method_params: Mapping[str, Mapping[str, Any]] = _f({}, "identity", "extractor parameters per method")
-    checkpoints: tuple[float, ...] = _f((), "identity", "fractions of the fit at which the network is scored too")
-    pc_points: int = _f(DEFAULT_PC_POINTS, "identity", "points of the input cloud (reconstruct task)")
-    pc_noise: float = _f(0.0, "identity", "Gaussian noise sigma of the input points, canonical units (reconstruct)")
-    train_dirs: tuple[str, ...] | None = _f(None, "identity", "extra training meshes of the learned reconstruction "
-                                                         "methods (None: the shared Thingi10K folder if present)")
-    budget_params: Mapping[str, Any] = _f({}, "identity", "overrides of the budget's values (neural mode)")
-    sweep: Mapping[str, tuple] = _f({}, "identity", "swept settings, {key: values} (cross product)")
-    ceiling: bool = _f(True, "identity", "a neural sweep also runs the same sweep in oracle mode")
-    methods: tuple[str, ...] = _f((), "scope", "methods (empty: all registered)")
-    seeds: tuple[int, ...] = _f((0,), "scope", "seeds")
-    executor: str = _f("auto", "execution", "auto, local, process or ray")
-    workers: int | None = _f(None, "execution", "parallel jobs")
-    address: str | None = _f(None, "execution", "ray cluster address")
-    gpus_per_job: float = _f(1.0, "execution", "ray: GPUs per fitting job")
-    cpus_per_job: float = _f(1.0, "execution", "ray: CPUs per job")
-    threads: int | None = _f(None, "execution", "torch threads per job")
-    retries: int = _f(1, "execution", "retries of a job whose worker died")
-    cache_dir: str | None = _f(None, "execution", "cache root")
-    no_cache: bool = _f(False, "execution", "caches off")
-    plugins: tuple[str, ...] = _f((), "execution", "modules imported first")
-    quiet: bool = _f(False, "execution", "one line per finished job")
-    recompute_stale: bool = _f(False, "execution", "recompute finished tasks whose code changed")
+    task: str = _setting(
+        "identity", "encode", "encode (default): fit a field per shape from its mesh and extract it; reconstruct: "
+        "a mesh from a raw point cloud sampled from the GT (no normals)", choices=TASKS)
+    dataset: str = _setting(
+        "identity", "builtin", "dataset: builtin (default; 4 generated CAD-like shapes, no download), abc, "
+        "abc-nonmanifold, meshes (any folder of mesh files)")
+    data_dir: str | None = _setting("identity", None, "folder of mesh files (abc, abc-nonmanifold, meshes)", kind=str)
+    list_file: str | None = _setting(
+        "identity", None, "text file of shape names, one per line (e.g. the SALS ABC test lists)", kind=str)
+    limit: int | None = _setting("identity", None, "use only the first N shapes of the dataset", kind=int, ge=1)
+    mode: str = _setting(
+        "identity", "neural", "neural (default): fit a network per shape and method, extract from it; oracle: "
+        "extract from the exact field (no fitting; isolates extraction error)", choices=MODES)
+    budget: str | None = _setting(
+        "identity", "cpu", "fitting budget, the same for every method: cpu (default; feature-grid backbone, 3,000 "
+        "steps: a fit in under a minute on one CPU core), quick (a small MLP, the CPU reference without the grid), "
+        "paper (the paper's 9 x 512 MLP, 100k steps: a GPU budget), tiny and tiny-grid (tests and CI)",
+        sweep="budget", optional=True)
+    grid: int = _setting(
+        "identity", 128, f"grid points per axis on [-1,1] (default 128; >= {MIN_GRID}, bounded by this machine's "
+        "memory); spacing 2/(N-1) canonical units", sweep="grid", ge=MIN_GRID)
+    metric_preset: str = _setting(
+        "identity", "default", "metric protocol: default (canonical frame, Chamfer-L1, F1@0.005/0.01, ECD/EF1) or "
+        "ndc (NDC's script)")
+    eval_points: int | None = _setting(
+        "identity", None, f"surface samples per mesh for the metrics (>= {MIN_EVAL_POINTS}; default: the preset's "
+        "n, 1,000,000 for 'default', 100,000 for 'ndc'); stated in every table caption", sweep="eval_points",
+        kind=int, ge=MIN_EVAL_POINTS)
+    method_params: Mapping[str, Mapping[str, Any]] = _setting(
+        "identity", {}, "override an extractor parameter, e.g. sals.o_threshold=0.2 or sals.normals=no "
+        "(repeatable); typed and range-checked against the method's parameters", kind=dict, item=dict)
+    checkpoints: tuple[float, ...] = _setting(
+        "identity", (), "neural mode: also score the network at these increasing fractions of the fit budget, "
+        "e.g. 0.25,0.5,1 (anytime curves: one row per checkpoint in results.db/checkpoints.csv and a plot of each "
+        "metric against fit seconds in the report); off by default; jobs with checkpoints always fit",
+        item=float, gt=0, le=1)
+    pc_points: int = _setting(
+        "identity", DEFAULT_PC_POINTS, f"reconstruct task: points of the input cloud (default {DEFAULT_PC_POINTS:,}, "
+        f"the paper's; >= {MIN_PC_POINTS})", sweep="pc_points", ge=MIN_PC_POINTS)
+    pc_noise: float = _setting(
+        "identity", 0.0, "reconstruct task: Gaussian noise sigma added to the input points, canonical units "
+        "(default 0)", sweep="pc_noise", ge=0, lt=1)
+    train_dirs: tuple[str, ...] | None = _setting(
+        "identity", None, "reconstruct task: a folder of extra training meshes for the learned methods (repeatable; "
+        "default: ../shared/data/thingi10k where it exists); the built-in training parts are always included",
+        kind=tuple, item=str)
+    budget_params: Mapping[str, Any] = _setting(
+        "identity", {}, "override a value of the budget, e.g. num_samples=500000 or iterations=2000 (repeatable; "
+        "typed and range-checked; recorded in config.json and every table caption)", kind=dict)
+    sweep: Mapping[str, tuple] = _setting(
+        "identity", {}, "run every value of a setting in one run directory (repeatable: the cross product). KEY: "
+        "grid, eval_points, budget, seed, budget.NAME (e.g. budget.num_samples) or METHOD.NAME (e.g. "
+        "sals.o_threshold); values typed like --method-param. Each row records its values in columns sweep.KEY; "
+        "jobs that differ only in extraction settings share one fit; a neural sweep also runs its oracle ceiling "
+        "(see --no-ceiling)", kind=dict, item=tuple)
+    ceiling: bool = _setting(
+        "identity", True, "a neural sweep also runs the same sweep on the exact field (its oracle ceiling)")
+    methods: tuple[str, ...] = _setting("scope", (), "methods to run (default: every registered method)", item=str)
+    seeds: tuple[int, ...] = _setting(
+        "scope", (0,), "seeds in [0, 2^63) (default 0); each seed is a separate job per shape and method "
+        "(sampling, network init, metric samples)", sweep="seed", item=int, ge=0, le=MAX_SEED)
+    executor: str = _setting(
+        "execution", "auto", "auto (default: on a CPU, one process per physical core with one torch thread each "
+        "when there are two or more tasks; else local), local (in-process, sequential), process (--workers local "
+        "processes), ray (Ray tasks, local instance or --address cluster)")
+    workers: int | None = _setting(
+        "execution", None, "parallel jobs for auto and process (default: physical cores for auto, CPU cores for "
+        "process) and for a local ray instance (its CPU count); torch threads per job: auto 1, process "
+        "max(1, cores // K)", kind=int, ge=1)
+    address: str | None = _setting(
+        "execution", None, "ray cluster to join: 'auto' (a cluster started with `ray start`) or host:port; "
+        "without it a local ray instance is started", kind=str)
+    gpus_per_job: float = _setting(
+        "execution", 1.0, "ray: GPUs a fitting job asks for when the cluster has GPUs (default 1; fractions "
+        "allowed, e.g. 0.5)", ge=0)
+    cpus_per_job: float = _setting("execution", 1.0, "ray: CPUs per job (default 1)", gt=0)
+    threads: int | None = _setting(
+        "execution", None, "torch CPU threads per job (default: 1 for auto's process workers, torch's own (all "
+        "cores) for local and for auto with one task; cores // workers for process; --cpus-per-job for ray)",
+        kind=int, ge=1)
+    retries: int = _setting(
+        "execution", 1, "times a job whose worker died is retried (default 1); jobs that raise are recorded "
+        "failed at once", ge=0)
+    cache_dir: str | None = _setting(
+        "execution", None, "cache root (default $SALSBENCH_CACHE or ~/.cache/salsbench)", kind=str)
+    no_cache: bool = _setting("execution", False, "do not read or write the weights/mesh/field caches")
+    plugins: tuple[str, ...] = _setting(
+        "execution", (), "import MODULE (or MODULE:FUNCTION, then call it) first, in the driver and every worker, "
+        "to register extra methods or datasets (repeatable)", item=str)
+    quiet: bool = _setting("execution", False, "no progress bar; one line per finished job (CI logs)")
+    recompute_stale: bool = _setting(
+        "execution", False, "in an existing run directory, recompute the finished tasks whose code changed since "
+        "(without it such a run is refused: one directory never mixes two code versions)")
 
     def __post_init__(self):
-        for f in dataclasses.fields(self):
-            object.__setattr__(self, f.name, _coerce(f, getattr(self, f.name)))
+        try:
+            check_fields(self, "")
+        except ParamError as exc:
+            raise ConfigError(str(exc)) from None
         if self.task == "reconstruct":
             if self.budget is None:
                 object.__setattr__(self, "budget", "cpu")  # the training budget of the learned methods
@@ -124,46 +187,28 @@ class RunConfig:
     def _check(self) -> None:
         from benchmark.run.executors import EXECUTORS
 
-        def choice(name, value, allowed):
-            if value not in allowed:
-                raise ConfigError(f"{name} must be one of {', '.join(allowed)}, got '{value}'")
-
-        choice("--task", self.task, TASKS)
-        choice("--mode", self.mode, MODES)
         if self.executor not in EXECUTORS:
             raise ConfigError(f"--executor: {EXECUTORS.unknown(self.executor)}")
-        if self.grid < MIN_GRID:
-            raise ConfigError(f"--grid must be >= {MIN_GRID} points per axis, got {self.grid}")
         memory = machine_memory_bytes()
         if memory is not None and grid_memory_bytes(self.grid) > memory:
             largest = int((memory / GRID_BYTES_PER_POINT) ** (1 / 3))
             raise ConfigError(f"--grid {self.grid} needs ~{grid_memory_bytes(self.grid) / 2**30:.0f} GiB of grid "
                               f"buffers per job, more than this machine's {memory / 2**30:.0f} GiB; "
                               f"use --grid <= {largest}")
-        if self.eval_points is not None and self.eval_points < MIN_EVAL_POINTS:
-            raise ConfigError(f"--eval-points must be >= {MIN_EVAL_POINTS}, got {self.eval_points}")
         if not self.seeds:
             raise ConfigError("--seed needs at least one value")
-        bad = [s for s in self.seeds if not 0 <= s <= MAX_SEED]
-        if bad:
-            raise ConfigError(f"--seed values must lie in [0, 2^63), got {bad[0]}")
         if len(set(self.seeds)) != len(self.seeds) or len(set(self.methods)) != len(self.methods):
             raise ConfigError("--seed and --methods values must not repeat")
         if self.checkpoints:
             c = self.checkpoints
             if self.mode != "neural":
                 raise ConfigError("--checkpoints needs --mode neural (oracle mode fits nothing)")
-            if not all(0 < f <= 1 for f in c) or any(b <= a for a, b in zip(c, c[1:])):
+            if any(b <= a for a, b in zip(c, c[1:])):
                 raise ConfigError(f"--checkpoints must be increasing fractions of the budget in (0, 1], got {list(c)}")
         if self.task == "encode" and (self.pc_points != DEFAULT_PC_POINTS or self.pc_noise != 0):
             raise ConfigError("--pc-points and --pc-noise apply to --task reconstruct")
-        if self.task == "reconstruct":
-            if self.mode != "neural" or self.checkpoints:
-                raise ConfigError("--mode oracle and --checkpoints apply to --task encode")
-            if self.pc_points < MIN_PC_POINTS:
-                raise ConfigError(f"--pc-points must be >= {MIN_PC_POINTS}, got {self.pc_points}")
-            if not 0 <= self.pc_noise < 1:
-                raise ConfigError(f"--pc-noise must be a sigma in [0, 1) canonical units, got {self.pc_noise}")
+        if self.task == "reconstruct" and (self.mode != "neural" or self.checkpoints):
+            raise ConfigError("--mode oracle and --checkpoints apply to --task encode")
         if self.budget_params and self.mode != "neural":
             raise ConfigError("--budget-param needs --mode neural (oracle mode fits nothing)")
         swept = tuple(self.sweep.get("seed", ()))
@@ -171,20 +216,21 @@ class RunConfig:
             if self.seeds not in ((0,), swept):
                 raise ConfigError("--seed and --sweep seed=... both give the seeds: give one")
             object.__setattr__(self, "seeds", swept)
-        if self.limit is not None and self.limit < 1:
-            raise ConfigError(f"--limit must be >= 1, got {self.limit}")
-        for name in ("workers", "threads"):
-            value = getattr(self, name)
-            if value is not None and value < 1:
-                raise ConfigError(f"--{name} must be >= 1, got {value}")
-        if self.retries < 0:
-            raise ConfigError(f"--retries must be >= 0, got {self.retries}")
-        if self.gpus_per_job < 0 or self.cpus_per_job <= 0:
-            raise ConfigError("--gpus-per-job must be >= 0 and --cpus-per-job > 0")
         if self.address is not None and self.executor != "ray":
             raise ConfigError("--address only applies to --executor ray")
         if self.workers is not None and self.executor == "local":
             raise ConfigError("--workers applies to --executor auto, process or ray; the local executor runs one job at a time")
+
+    @classmethod
+    def params(cls) -> dict[str, Param]:
+        """Every setting's :class:`Param` (type, bounds, help), in field order."""
+        return params_of(cls)
+
+    @classmethod
+    def sweep_params(cls) -> dict[str, Param]:
+        """The run settings a sweep may vary: ``{sweep key: the Param of one value}``."""
+        return {f.metadata["sweep"]: f.metadata["param"].scalar() for f in dataclasses.fields(cls)
+                if f.metadata.get("sweep")}
 
     # -- roles ------------------------------------------------------------------------------
     @classmethod
@@ -247,66 +293,6 @@ def _plain(value):
     if isinstance(value, Mapping):
         return {k: _plain(v) for k, v in value.items()}
     return value
-
-
-def _is_scalar(value) -> bool:
-    return isinstance(value, (str, int, float, bool))
-
-
-def _coerce(f: dataclasses.Field, value):
-    """``value`` as the field's declared type; ConfigError naming the setting otherwise."""
-    kind = f.type
-    name = f.name
-    if value is None and "None" in kind:
-        return None
-    try:
-        if kind.startswith("tuple[str"):
-            items = [value] if isinstance(value, str) else list(value)
-            if not all(isinstance(v, str) for v in items):
-                raise TypeError
-            return tuple(items)
-        if kind.startswith("tuple[float"):
-            items = [value] if isinstance(value, (int, float)) else list(value)
-            if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in items):
-                raise TypeError
-            return tuple(float(v) for v in items)
-        if kind.startswith("tuple[int"):
-            items = [value] if isinstance(value, int) else list(value)
-            if not all(isinstance(v, int) and not isinstance(v, bool) for v in items):
-                raise TypeError
-            return tuple(int(v) for v in items)
-        if kind.startswith("Mapping[str, Mapping"):
-            if not isinstance(value, Mapping) or not all(isinstance(v, Mapping) for v in value.values()):
-                raise TypeError
-            return {str(m): dict(p) for m, p in value.items()}
-        if kind.startswith("Mapping[str, tuple"):
-            if not isinstance(value, Mapping) or not all(
-                    isinstance(v, (list, tuple)) and all(_is_scalar(x) for x in v) for v in value.values()):
-                raise TypeError
-            return {str(k): tuple(v) for k, v in value.items()}
-        if kind.startswith("Mapping"):
-            if not isinstance(value, Mapping) or not all(_is_scalar(v) for v in value.values()):
-                raise TypeError
-            return {str(k): v for k, v in value.items()}
-        if kind.startswith("bool"):
-            if not isinstance(value, bool):
-                raise TypeError
-            return value
-        if kind.startswith("int"):
-            if isinstance(value, bool) or not isinstance(value, int):
-                raise TypeError
-            return value
-        if kind.startswith("float"):
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise TypeError
-            return float(value)
-        if kind.startswith("str"):
-            if not isinstance(value, str):
-                raise TypeError
-            return value
-    except TypeError:
-        pass
-    raise ConfigError(f"setting '{name}' must be {kind}, got {value!r}")
 
 
 def import_plugins(plugins) -> None:

@@ -86,7 +86,7 @@ def resolve(config: RunConfig) -> Plan:
             raise ConfigError(f"--plugin {name}: cannot load ({type(exc).__name__}: {exc})") from None
     from benchmark.metrics import PRESETS
     from methods.base import METHODS, available_methods
-    from methods.params import ParamError
+    from benchmark.params import ParamError
 
     try:
         methods = tuple(config.methods) or tuple(available_methods(config.task))
@@ -177,7 +177,7 @@ def _variants(config: RunConfig, methods: tuple[str, ...]) -> tuple[dict[str, tu
     RunConfig checks (grid memory, ranges) and the method/budget checks apply to every value."""
     from benchmark.run import sweep as sweeps
     from methods.base import METHODS
-    from methods.params import ParamError
+    from benchmark.params import ParamError
 
     typed = sweeps.typed_sweep(config.sweep, methods, config.mode, config.task)
     keys = {k: sweeps.sweep_key(k, methods, config.mode, config.task) for k in typed}

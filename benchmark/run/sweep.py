@@ -4,11 +4,11 @@ A sweep key names one setting of a job:
 
 * a run setting: ``grid``, ``eval_points``, ``budget`` (a budget name), ``seed``, and for the
   reconstruct task ``pc_points`` and ``pc_noise``;
-* a budget value: ``budget.NAME`` for NAME in :data:`methods.fitting.BUDGET_PARAMS`
+* a budget value: ``budget.NAME`` for NAME in :func:`budget_parameters`
   (``budget.num_samples``, ``budget.iterations``, ...);
 * a method parameter: ``METHOD.NAME`` (``sals.o_threshold``, ``sals.normals``, ``sals.faces``).
 
-Values are typed and range-checked by the key's :class:`methods.params.Param`, exactly as
+Values are typed and range-checked by the key's :class:`benchmark.params.Param`, exactly as
 ``--method-param`` and ``--budget-param`` values are. Several keys give their cross product, in the
 order given (:func:`variants`). A key applies to a job or not (:meth:`SweepKey.applies_to`): a
 method parameter only to that method's jobs (and, if only the neural query reads it, e.g.
@@ -25,19 +25,11 @@ import itertools
 from dataclasses import dataclass
 from typing import Any, Iterable, Mapping, Sequence
 
-from benchmark.run.config import DEFAULT_PC_POINTS, MIN_EVAL_POINTS, MIN_GRID, MIN_PC_POINTS, ConfigError
-from benchmark.seeding import MAX_SEED
-from methods.params import Param, ParamError
+from benchmark.params import Param, ParamError
+from benchmark.run.config import ConfigError, RunConfig
 
-#: Run settings a sweep may vary, typed as their RunConfig fields.
-RUN_KEYS: dict[str, Param] = {
-    "grid": Param(128, "grid points per axis on [-1, 1]", ge=MIN_GRID),
-    "eval_points": Param(1_000_000, "metric samples per mesh", ge=MIN_EVAL_POINTS),
-    "budget": Param("cpu", "fitting budget name"),
-    "seed": Param(0, "seed", ge=0, le=MAX_SEED),
-    "pc_points": Param(DEFAULT_PC_POINTS, "points of the input cloud (reconstruct task)", ge=MIN_PC_POINTS),
-    "pc_noise": Param(0.0, "noise sigma of the input points (reconstruct task)", ge=0, lt=1),
-}
+#: Run settings a sweep may vary, typed by their RunConfig fields' Params.
+RUN_KEYS: dict[str, Param] = RunConfig.sweep_params()
 
 
 @dataclass(frozen=True)
