@@ -1,9 +1,9 @@
 #!/usr/bin/env python
-"""Run the salsbench benchmark: ``python run_benchmark.py --help`` (see benchmark/run/cli.py)."""
+"""Run the salsbench benchmark: ``python run_benchmark.py --help`` (see runner/cli.py)."""
 
 import sys
 
-from benchmark.run.cli import main
+from runner.cli import main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -1,6 +1,6 @@
 """The result schema: one declaration from which every table of results derives.
 
-``results.db`` columns (:mod:`benchmark.run.records`), the lead columns of ``results.csv`` (a
+``results.db`` columns (:mod:`runner.records`), the lead columns of ``results.csv`` (a
 contract: scripts read them), the validity columns of the reports and the columns the CI regression
 compares all come from :data:`JOB_COLUMNS` / :data:`FLOOR_COLUMNS` below. Metric and timing keys
 that a preset or a method adds (``f1_003``, ``extract_qef_s``, ...) are stored as extra columns when
@@ -22,7 +22,7 @@ class Column:
 
     name : column name (SQL, CSV, pandas). sql : SQLite type. role : see module docstring.
     label : short header for reports (validity columns). csv : part of results.csv's lead columns.
-    regression : compared by the CI regression (``benchmark.run.regression``).
+    regression : compared by the CI regression (``runner.regression``).
     """
 
     name: str

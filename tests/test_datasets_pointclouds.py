@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 import trimesh
 
-from benchmark.run.cli import EXIT_REFUSED, main
+from runner.cli import EXIT_REFUSED, main
 from datasets import MeshError, get_dataset
 from datasets.io import NO_GT
 from datasets.pointclouds import read_point_cloud

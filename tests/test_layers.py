@@ -1,9 +1,9 @@
 """The import contract of docs/ARCHITECTURE.md, checked over the source: every import statement of
 every project module (also those inside functions), so a lazy import cannot hide an upward arrow.
 
-Layers, lowest first: foundation (``benchmark`` outside ``benchmark.run``, ``datasets``), methods,
-reports, run (``benchmark.run``). A module may import its own layer and the ones below it; and the
-modules import each other without a cycle.
+Layers, lowest first: foundation (``benchmark``, ``datasets``), methods, reports, run (``runner``).
+A module may import its own layer and the ones below it; and the modules import each other without
+a cycle.
 """
 
 from __future__ import annotations
@@ -12,16 +12,16 @@ from pathlib import Path
 
 import pytest
 
-from benchmark.run.cache import project_imports
+from runner.cache import project_imports
 
 REPO = Path(__file__).resolve().parents[1]
-PACKAGES = ("benchmark", "datasets", "methods", "reports")
+PACKAGES = ("benchmark", "datasets", "methods", "reports", "runner")
 LAYERS = ("foundation", "methods", "reports", "run")
 
 
 def layer(module: str) -> str | None:
     top = module.split(".")[0]
-    if module == "benchmark.run" or module.startswith("benchmark.run."):
+    if top == "runner":
         return "run"
     if top in ("benchmark", "datasets"):
         return "foundation"
@@ -109,8 +109,8 @@ def test_the_folders_import_each_other_without_a_cycle(graph):
 def test_the_checker_sees_lazy_and_relative_imports():
     modules = project_modules()
     graph = import_graph(modules)
-    assert layer("benchmark.run.cli") == "run" and layer("benchmark.metrics.edges") == "foundation"
-    assert "methods.base" in graph["benchmark.run.plan"]  # imported inside a function
-    assert any(t.startswith("reports") for t in graph["benchmark.run.export"])
+    assert layer("runner.cli") == "run" and layer("benchmark.metrics.edges") == "foundation"
+    assert "methods.base" in graph["runner.plan"]  # imported inside a function
+    assert any(t.startswith("reports") for t in graph["runner.export"])
     assert import_cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     assert import_cycles({"a": {"b"}, "b": set()}) == []

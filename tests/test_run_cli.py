@@ -1,4 +1,4 @@
-"""Whole runs through the command line (benchmark.run.cli, run_benchmark.py): bad options refused
+"""Whole runs through the command line (runner.cli, run_benchmark.py): bad options refused
 with one line before any work, the output contract, failures and exit codes, resume, one protocol
 and one writer per run directory, caches, reproduction from config.json and the report subcommand.
 
@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from benchmark.run.cli import EXIT_FAILED_TASKS, EXIT_REFUSED, main
+from runner.cli import EXIT_FAILED_TASKS, EXIT_REFUSED, main
 from benchmark.schema import csv_lead
 from tests.fake_methods import PLUGIN
 
@@ -83,7 +83,7 @@ def test_bad_options_fail_with_one_line_before_any_work(fakes, tmp_path, capsys,
                                       ("YES", True), ("true", True), ("1", True), ("maybe", None)])
 def test_boolean_method_params_parse_as_booleans(tmp_path, capsys, text, ok):
     """sals.normals=False used to be True (any non-empty string)."""
-    from benchmark.run.cli import parse_method_params
+    from runner.cli import parse_method_params
 
     if ok is None:
         with pytest.raises(ValueError, match="expected bool"):
@@ -457,7 +457,7 @@ def test_a_changed_method_is_refused_in_its_run_directory_or_recomputed_on_reque
     whose code did not change, are kept)."""
     import sys
 
-    from benchmark.run.cache import code_digest
+    from runner.cache import code_digest
     from methods.base import METHODS
 
     monkeypatch.syspath_prepend(str(tmp_path))

@@ -1,4 +1,4 @@
-"""RunConfig and Plan (benchmark.run.config): typed, frozen, self-checking, round-trips through JSON."""
+"""RunConfig and Plan (runner.config): typed, frozen, self-checking, round-trips through JSON."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import json
 
 import pytest
 
-from benchmark.run.config import ConfigError, RunConfig, grid_memory_bytes, machine_memory_bytes
-from benchmark.run.plan import resolve
+from runner.config import ConfigError, RunConfig, grid_memory_bytes, machine_memory_bytes
+from runner.plan import resolve
 
 
 def test_defaults_round_trip_through_json():

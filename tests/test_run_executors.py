@@ -1,4 +1,4 @@
-"""Executors (benchmark.run.executors): local, process and Ray give the same results; failures are recorded.
+"""Executors (runner.executors): local, process and Ray give the same results; failures are recorded.
 
 Tolerance: oracle mode is deterministic (exact fields, seeded metric samples, no thread-count
 dependent reductions), so the tables of the three executors must be *identical*; only timings,
@@ -21,8 +21,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from benchmark.run.executors import LocalExecutor, ProcessExecutor, WorkerLost, ray_available, threads_per_worker
-from benchmark.run.cli import EXIT_FAILED_TASKS, main
+from runner.executors import LocalExecutor, ProcessExecutor, WorkerLost, ray_available, threads_per_worker
+from runner.cli import EXIT_FAILED_TASKS, main
 
 REPO = Path(__file__).resolve().parents[1]
 RAY_OK, RAY_REASON = ray_available()
@@ -61,7 +61,7 @@ def test_threads_per_worker():
 
 def test_physical_cores_count_smt_siblings_once(monkeypatch, tmp_path):
     """Two packages x 2 cores x 2 SMT threads = 8 CPUs, 4 physical cores; only allowed CPUs count."""
-    from benchmark.run import executors
+    from runner import executors
 
     blocks = [f"processor\t: {cpu}\nphysical id\t: {cpu // 4}\ncore id\t\t: {cpu % 2}\n\n" for cpu in range(8)]
     cpuinfo = tmp_path / "cpuinfo"
@@ -78,8 +78,8 @@ def test_physical_cores_count_smt_siblings_once(monkeypatch, tmp_path):
 def test_auto_executor_runs_one_process_per_physical_core_on_a_cpu(monkeypatch):
     """The default executor: process workers (one per physical core, never more than the tasks, one
     torch thread each) for two or more tasks on a CPU; the local executor for a single task."""
-    from benchmark.run import executors
-    from benchmark.run.config import RunConfig
+    from runner import executors
+    from runner.config import RunConfig
 
     monkeypatch.setattr(executors, "physical_cores", lambda: 4)
     many = executors.make_executor(RunConfig(), 10)
@@ -104,7 +104,7 @@ def test_pin_threads_sets_the_openmp_variables_and_torchs_pool(monkeypatch):
     and a library loaded later (the KD-tree's OpenMP runtime) reads T from OMP_NUM_THREADS."""
     import torch
 
-    from benchmark.run.executors import pin_threads
+    from runner.executors import pin_threads
 
     before = torch.get_num_threads()
     for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
@@ -210,7 +210,7 @@ def test_local_table_has_the_failure_recorded(local_table):
 def test_default_executor_runs_process_workers_and_gives_the_local_table(mesh_dir, tmp_path, local_table, monkeypatch):
     """No --executor: on a CPU with two physical cores or more the jobs run in one process per core
     (at least 2 here), the table is the local one, config.json and timing.md name how they ran."""
-    from benchmark.run import executors
+    from runner import executors
 
     monkeypatch.setattr(executors, "physical_cores", lambda: 2)
     df, _ = _run(mesh_dir, tmp_path / "run", tmp_path / "cache")
@@ -255,7 +255,7 @@ def test_ray_executor_gives_the_local_table(ray_instance, mesh_dir, tmp_path, lo
 
 
 def test_ray_dead_worker_is_reported_failed_and_others_finish(ray_instance):
-    from benchmark.run.executors import RayExecutor
+    from runner.executors import RayExecutor
 
     ex = RayExecutor(retries=0)
     try:
@@ -268,7 +268,7 @@ def test_ray_dead_worker_is_reported_failed_and_others_finish(ray_instance):
 
 
 def test_ray_resources_ask_gpus_only_for_fitting_jobs(ray_instance):
-    from benchmark.run.executors import RayExecutor
+    from runner.executors import RayExecutor
 
     ex = RayExecutor(gpus_per_job=0.5, cpus_per_job=1)
     ex.cluster_gpus = 2.0  # pretend the cluster has GPUs

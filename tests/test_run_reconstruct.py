@@ -7,8 +7,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from benchmark.run.cli import EXIT_REFUSED, main
-from benchmark.run.job import input_point_cloud
+from runner.cli import EXIT_REFUSED, main
+from runner.job import input_point_cloud
 from datasets import get_dataset
 
 
@@ -92,9 +92,9 @@ def test_a_learned_method_trains_once_and_later_jobs_and_runs_load_its_network(t
 
 
 def test_the_knn_recipe_sweeps_k_over_the_learned_method_only(tmp_path):
-    from benchmark.run.cli import build_parser, configure
-    from benchmark.run.plan import resolve
-    from benchmark.run.tasks import build_tasks
+    from runner.cli import build_parser, configure
+    from runner.plan import resolve
+    from runner.tasks import build_tasks
 
     args = build_parser().parse_args(["--recipe", "knn", "--methods", "sals-knn", "poisson", "--limit", "1",
                                       "--out", str(tmp_path / "r")])

@@ -1,4 +1,4 @@
-"""The results database (benchmark.run.records): schema, round trips, replacement, WAL, readers."""
+"""The results database (runner.records): schema, round trips, replacement, WAL, readers."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import sqlite3
 import numpy as np
 import pytest
 
-from benchmark.run.records import DB_NAME, JOB_COLUMNS, ResultsDB, column_name, open_run_db
+from runner.records import DB_NAME, JOB_COLUMNS, ResultsDB, column_name, open_run_db
 
 
 def _job(hash_, status="ok", **kw):

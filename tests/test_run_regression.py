@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from benchmark.run.regression import (BASELINES, SPREAD_MARGIN, TIERS, RegressionError, Tier, Tolerance, compare,
+from runner.regression import (BASELINES, SPREAD_MARGIN, TIERS, RegressionError, Tier, Tolerance, compare,
                                       mean_tolerances_of, read_list, spread_tolerances, verify_manifest)
 from tests.conftest import SHARED_DATA, requires_shared
 

@@ -1,4 +1,4 @@
-"""Sweeps as runs (benchmark.run.sweep through the command line): one row per sweep point with its
+"""Sweeps as runs (runner.sweep through the command line): one row per sweep point with its
 values in ``sweep.<key>`` columns, shared fits for extraction-only sweeps, oracle ceiling rows,
 resume after a kill, typed keys and values, config files and the shipped recipes.
 
@@ -17,9 +17,9 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from benchmark.run.cli import EXIT_REFUSED, build_parser, configure, main, recipe_names
-from benchmark.run.plan import resolve
-from benchmark.run.sweep import variants
+from runner.cli import EXIT_REFUSED, build_parser, configure, main, recipe_names
+from runner.plan import resolve
+from runner.sweep import variants
 from tests.fake_methods import PLUGIN
 from tests.kill_run import kill_after_ok_jobs
 
@@ -156,8 +156,8 @@ def test_a_killed_sweep_resumes_to_the_uninterrupted_table(tmp_path):
 
 
 def test_jobs_that_share_a_fit_are_scheduled_after_every_fitting_job(fakes, tmp_path):
-    from benchmark.run.driver import _schedule
-    from benchmark.run.tasks import build_tasks
+    from runner.driver import _schedule
+    from runner.tasks import build_tasks
 
     args = build_parser().parse_args(neural_args(tmp_path / "r", tmp_path / "cache", "--limit", "2", "--sweep",
                                                  "test_sdf.level=0,0.01", "--no-ceiling"))
@@ -176,8 +176,8 @@ def test_a_k_sweep_runs_the_jobs_of_networks_trained_early_while_the_last_one_tr
     networks are trained, so a worker never waits on K = 50's lock with K = 10 jobs queued behind it."""
     import trimesh
 
-    from benchmark.run.driver import _schedule
-    from benchmark.run.tasks import build_tasks
+    from runner.driver import _schedule
+    from runner.tasks import build_tasks
 
     (tmp_path / "train").mkdir()
     trimesh.creation.box().export(tmp_path / "train" / "box.ply")
@@ -195,7 +195,7 @@ def test_a_k_sweep_runs_the_jobs_of_networks_trained_early_while_the_last_one_tr
 
 
 def test_a_parameter_only_the_neural_query_reads_gives_one_ceiling_job(tmp_path):
-    from benchmark.run.tasks import build_tasks
+    from runner.tasks import build_tasks
 
     args = build_parser().parse_args(["--methods", "sals", "--limit", "1", "--sweep", "sals.o_threshold=0.1,0.5",
                                       "--sweep", "sals.normals=yes,no", "--out", str(tmp_path / "r")])

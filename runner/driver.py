@@ -4,7 +4,7 @@ Order of work: take the directory's lock (:meth:`RunDirectory.lock`), write ``co
 merged configuration, the resolved plan and the environment), then hand the unfinished tasks to
 the executor and commit each result to ``results.db`` as it arrives (its mesh to
 ``meshes/<shape>/<method>.ply``). At the end ``results.csv``, ``floor.csv`` and the reports are
-written (:mod:`benchmark.run.export`). Resume is by key: a task whose key has an ``ok`` row is
+written (:mod:`runner.export`). Resume is by key: a task whose key has an ``ok`` row is
 skipped; failed tasks run again.
 """
 
@@ -15,13 +15,13 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from benchmark.run.cache import task_code_digest
-from benchmark.run.config import ConfigError
-from benchmark.run.plan import Plan
-from benchmark.run.job import TaskResult, failed_from_exception, now_iso, run_task
-from benchmark.run.records import ResultsDB
-from benchmark.run.rundir import RunDirectory
-from benchmark.run.tasks import build_tasks
+from runner.cache import task_code_digest
+from runner.config import ConfigError
+from runner.plan import Plan
+from runner.job import TaskResult, failed_from_exception, now_iso, run_task
+from runner.records import ResultsDB
+from runner.rundir import RunDirectory
+from runner.tasks import build_tasks
 
 
 @dataclass(frozen=True)
@@ -103,9 +103,9 @@ def _schedule(plan: Plan, todo: list):
 
 def run(plan: Plan, run_dir: RunDirectory, record: dict, executor=None) -> RunOutcome:
     """Run the plan's unfinished tasks into ``run_dir`` (which the caller has locked)."""
-    from benchmark.run.display import Display
-    from benchmark.run.executors import execution_record, make_executor
-    from benchmark.run.export import export
+    from runner.display import Display
+    from runner.executors import execution_record, make_executor
+    from runner.export import export
 
     config = plan.config
     db = ResultsDB(run_dir.path / "results.db")  # first: a database of another schema is refused untouched

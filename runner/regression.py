@@ -1,8 +1,8 @@
 """Regression check on a frozen ABC subset against committed baseline tables.
 
-    python -m benchmark.run.regression                      # run both tiers, compare, exit 1 on drift
-    python -m benchmark.run.regression --tier oracle        # one tier
-    python -m benchmark.run.regression --update-baselines   # rewrite reports/baselines/<tier>/ (review the diff!)
+    python -m runner.regression                      # run both tiers, compare, exit 1 on drift
+    python -m runner.regression --tier oracle        # one tier
+    python -m runner.regression --update-baselines   # rewrite reports/baselines/<tier>/ (review the diff!)
 
 The subset is ``reports/baselines/abc_subset.txt`` (5 meshes of ``../shared/data/abc``) plus the two
 non-manifold pairs of ``abc_subset_nonmanifold.txt``; ``abc_subset.sha256`` pins every file, so a
@@ -20,7 +20,7 @@ Tiers and tolerances (a value passes when ``|now - baseline| <= atol + rtol * |b
   diverges like a change of seed, so per-job values are left to the oracle tier: this tier compares
   each method's *mean* of each metric over the subset's jobs, and the ranking of the methods on
   those means. Its tolerances are derived from ``reports/baselines/neural/spread.csv``, the tier run
-  at seeds 0-4 on every CPU float path (``python -m benchmark.run.regression --tier neural
+  at seeds 0-4 on every CPU float path (``python -m runner.regression --tier neural
   --measure-spread 0 1 2 3 4``): per method and metric, :data:`SPREAD_MARGIN` times the largest
   distance of a (path, seed) mean from the baseline's mean. Job statuses are still compared per job.
 """
@@ -40,12 +40,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from benchmark.run.executors import available_cores
 from benchmark.schema import columns, regression_columns
 from methods.base import available_methods
 from methods.device import FLOAT_PATHS, float_path_environment
+from runner.executors import available_cores
+from runner.provenance import REPO
 
-REPO = Path(__file__).resolve().parents[2]
 BASELINES = REPO / "reports" / "baselines"
 DEFAULT_DATA_DIR = REPO.parent / "shared" / "data" / "abc"
 KEY = ["shape", "method", "seed"]
@@ -294,7 +294,7 @@ def mean_tolerances_of(tier: Tier, baseline: pd.DataFrame) -> pd.DataFrame | Non
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmark.run.regression", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m runner.regression", description=__doc__.split("\n\n")[0])
     parser.add_argument("--tier", choices=[*TIERS, "all"], default="all", help="which tier(s) to run (default: all)")
     parser.add_argument("--data-dir", type=Path, default=DEFAULT_DATA_DIR,
                         help="folder with the ABC meshes of the subset (default: ../shared/data/abc)")

@@ -13,7 +13,7 @@ Python. Every field has a *role*:
 * ``execution``: how this invocation runs (executor, workers, threads, caches, ...). Recorded,
   never part of a result's identity.
 
-:func:`benchmark.run.plan.resolve` turns a config into a :class:`benchmark.run.plan.Plan` (imports
+:func:`runner.plan.resolve` turns a config into a :class:`runner.plan.Plan` (imports
 plugins, checks method and parameter names against the registry, builds the dataset and lists its
 shapes). Every check raises :class:`ConfigError` with one line, before any work starts.
 """
@@ -185,7 +185,7 @@ class RunConfig:
         self._check()
 
     def _check(self) -> None:
-        from benchmark.run.executors import EXECUTORS
+        from runner.executors import EXECUTORS
 
         if self.executor not in EXECUTORS:
             raise ConfigError(f"--executor: {EXECUTORS.unknown(self.executor)}")

@@ -5,7 +5,7 @@ holding another protocol or in use by another run); 3 the run finished with fail
 errors are in the tables and ``results.db``; "N ok, M failed" is the last line).
 
 Where a run's configuration comes from, in order (later wins): the defaults of
-:class:`benchmark.run.config.RunConfig`; ``--config FILE`` (TOML/JSON settings, or a run's
+:class:`runner.config.RunConfig`; ``--config FILE`` (TOML/JSON settings, or a run's
 ``config.json``: ``--config runs/X/config.json --out runs/Y`` reproduces run X); with ``--resume``,
 the run directory's saved ``config.json`` instead; the options given on the command line.
 """
@@ -20,16 +20,16 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from benchmark.params import ParamError
-from benchmark.run.config import ConfigError, RunConfig, import_plugins
-from benchmark.run.parsing import EXIT_FAILED_TASKS, EXIT_OK, EXIT_REFUSED, OneLineParser
-from benchmark.run.plan import resolve
-from benchmark.run.records import SchemaMismatch
-from benchmark.run.rundir import RunDirectory, check_writable_dir, saved_config
+from runner.config import ConfigError, RunConfig, import_plugins
+from runner.parsing import EXIT_FAILED_TASKS, EXIT_OK, EXIT_REFUSED, OneLineParser
+from runner.plan import resolve
+from runner.records import SchemaMismatch
+from runner.rundir import RunDirectory, check_writable_dir, saved_config
 
 RUNS_ROOT = Path("runs")
 
-#: Shipped recipes: ``benchmark/recipes/<name>.toml`` (``--recipe NAME``).
-RECIPES_DIR = Path(__file__).resolve().parent.parent / "recipes"
+#: Shipped recipes: ``runner/recipes/<name>.toml`` (``--recipe NAME``).
+RECIPES_DIR = Path(__file__).resolve().parent / "recipes"
 
 
 def recipe_names() -> list[str]:
@@ -174,7 +174,7 @@ def _overrides(args: argparse.Namespace, plugins: Sequence[str]) -> dict[str, An
     if "budget_params" in given:
         given["budget_params"] = _key_values(given["budget_params"], "--budget-param", "NAME=VALUE (e.g. iterations=2000)")
     if "sweep" in given:
-        from benchmark.run.sweep import split_items
+        from runner.sweep import split_items
 
         given["sweep"] = split_items(given["sweep"])
     for key in ("methods", "seeds", "plugins"):
@@ -200,7 +200,7 @@ def typed_settings(config: RunConfig) -> RunConfig:
     if not (config.budget_params or config.sweep):
         return config
     import_plugins(config.plugins)
-    from benchmark.run.sweep import budget_parameters, typed_sweep
+    from runner.sweep import budget_parameters, typed_sweep
     from methods.base import METHODS, available_methods
 
     BUDGET_PARAMS = budget_parameters(config.task)
@@ -273,7 +273,7 @@ def configure(args: argparse.Namespace, run_dir: Path | None) -> RunConfig:
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == "report":
-        from benchmark.run.report_cli import report_main
+        from runner.report_cli import report_main
 
         return report_main(argv[1:])
     if argv and argv[0] == "train":
@@ -285,8 +285,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         run_dir = RunDirectory(check_writable_dir(out, "--out"))
         with run_dir.lock():
             plan = _plan(args, out)  # again under the lock: another run may have written config.json meanwhile
-            from benchmark.run.driver import run
-            from benchmark.run.provenance import environment_record
+            from runner.driver import run
+            from runner.provenance import environment_record
 
             record = {"config": plan.config.to_dict(), "resolved": plan.record(),
                       "environment": environment_record(),
@@ -317,11 +317,11 @@ def train_main(argv: Sequence[str]) -> int:
         return EXIT_REFUSED
     from tqdm import tqdm
 
-    from benchmark.run.tasks import cache_root_of
-    from benchmark.run.training import trained_network
+    from runner.tasks import cache_root_of
+    from runner.training import trained_network
 
     if plan.config.threads:
-        from benchmark.run.executors import pin_threads
+        from runner.executors import pin_threads
 
         pin_threads(int(plan.config.threads))
     for name in learned:

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from benchmark.run.parsing import OneLineParser
+from runner.parsing import OneLineParser
 
 
 def build_report_parser() -> argparse.ArgumentParser:
@@ -24,9 +24,9 @@ def build_report_parser() -> argparse.ArgumentParser:
 
 def report_main(argv: Sequence[str]) -> int:
     import reports
-    from benchmark.run.export import export, report_context, table_frame
-    from benchmark.run.records import open_run_db
-    from benchmark.run.rundir import RunDirectory
+    from runner.export import export, report_context, table_frame
+    from runner.records import open_run_db
+    from runner.rundir import RunDirectory
 
     args = build_report_parser().parse_args(list(argv))
     for r in args.runs:

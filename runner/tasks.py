@@ -143,7 +143,7 @@ class JobSpec(TaskSpec):
 def build_tasks(plan) -> tuple[list[FloorSpec], list[JobSpec]]:
     """Floor tasks (one per shape and evaluation sample count, first seed) and jobs (shapes x sweep
     points x methods x seeds, table order; a job that several sweep points share appears once)."""
-    from benchmark.run.sweep import trains as method_trains, variant_tag
+    from runner.sweep import trains as method_trains, variant_tag
 
     c = plan.config
     common = dict(dataset=c.dataset, dataset_options=plan.dataset_options, metric_preset=c.metric_preset,

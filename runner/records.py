@@ -1,12 +1,12 @@
 """The results database of a run: one SQLite file, ``<run dir>/results.db``.
 
-The driver (:mod:`benchmark.run.driver`) is its only writer; every finished task is committed at
+The driver (:mod:`runner.driver`) is its only writer; every finished task is committed at
 once (WAL journal), so killing the process loses at most the tasks in flight. Readers (reports,
 ``sqlite3``, pandas) may open it at any time.
 
 Tables (``SCHEMA_VERSION`` 2; columns declared in :mod:`benchmark.schema`):
 
-* ``jobs`` -- one row per job, primary key ``config_hash`` (the task key, :mod:`benchmark.run.tasks`);
+* ``jobs`` -- one row per job, primary key ``config_hash`` (the task key, :mod:`runner.tasks`);
   a re-run of a failed job replaces its row.
 * ``floor`` -- one row per shape (GT against a resample of itself), primary key ``floor_hash``.
 * ``checkpoints`` -- one row per checkpoint of a job's fit (``--checkpoints``), primary key
@@ -47,7 +47,7 @@ MEASURED = {c.name for table in TABLES.values() for c in table if c.role in ("me
 PROTOCOL_KEYS = ("preset", "n_points", "seed")
 
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
-#: Column prefix of a job's sweep values (``sweep.sals.o_threshold``; :mod:`benchmark.run.sweep`).
+#: Column prefix of a job's sweep values (``sweep.sals.o_threshold``; :mod:`runner.sweep`).
 SWEEP_PREFIX = "sweep."
 
 

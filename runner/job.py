@@ -11,7 +11,7 @@ exact fields), ``fit`` (``methods.fitting.fit``, or cached weights), ``query`` (
 oracle mode: ``query`` (``method.oracle_grid`` on the exact fields); then ``extract``
 (``method.extract``) and ``metrics`` (``benchmark.metrics.evaluate`` against the GT). A job of the
 ``reconstruct`` task: ``load``, for a learned method ``network`` (its network, trained once across
-shapes or loaded: :mod:`benchmark.run.training`), ``sample`` (the input point cloud,
+shapes or loaded: :mod:`runner.training`), ``sample`` (the input point cloud,
 :func:`input_point_cloud`), ``reconstruct`` (``PointCloudMethod.reconstruct``), ``metrics``. Randomness comes from
 :func:`benchmark.seeding.job_streams` of (shape content hash, seed).
 """
@@ -27,7 +27,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from benchmark.run.tasks import FloorSpec, JobSpec, digest, load_dataset
+from runner.tasks import FloorSpec, JobSpec, digest, load_dataset
 from benchmark.storage import CacheStats
 from benchmark.timing import StageTimer, stage
 
@@ -124,8 +124,8 @@ def timer_sync(device) -> Callable[[], None]:
 
 def _run(spec, progress: Callable | None, body: Callable) -> TaskResult:
     """Common frame of a task: result, timer, worker set-up, failure capture."""
-    from benchmark.run.config import import_plugins
-    from benchmark.run.provenance import package_versions
+    from runner.config import import_plugins
+    from runner.provenance import package_versions
     from methods.device import describe_device, get_device
 
     result = TaskResult(kind=spec.kind, key=spec.key, spec=spec, started=now_iso(), host=socket.gethostname())
@@ -186,7 +186,7 @@ def _job_body(spec: JobSpec, shape, device, timer: StageTimer, result: TaskResul
     import dataclasses
 
     from benchmark import metrics
-    from benchmark.run.cache import RunCaches, extraction_code_digest, fit_code_digest
+    from runner.cache import RunCaches, extraction_code_digest, fit_code_digest
     from methods.base import get_method
 
     method = get_method(spec.method, **spec.params)
@@ -340,7 +340,7 @@ def _reconstruct_body(spec: JobSpec, shape, device, timer: StageTimer, result: T
     method = get_method(spec.method, **spec.params)
     network = {}
     if spec.budget is not None:  # a learned method: its network, trained once across shapes (cached)
-        from benchmark.run.training import trained_network
+        from runner.training import trained_network
         from methods.knn_training import get_knn_budget
 
         report("training")

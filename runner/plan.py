@@ -1,7 +1,7 @@
-"""Resolution of a run configuration: :func:`resolve` turns a :class:`benchmark.run.config.RunConfig`
+"""Resolution of a run configuration: :func:`resolve` turns a :class:`runner.config.RunConfig`
 into a :class:`Plan` (plugins imported, method and parameter names checked against the registry,
 budgets looked up, the sweep typed and expanded into validated :class:`Variant` points, the dataset
-built and its shapes listed). Every check raises :class:`benchmark.run.config.ConfigError` with one
+built and its shapes listed). Every check raises :class:`runner.config.ConfigError` with one
 line, before any work starts.
 """
 
@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from benchmark.run.config import ConfigError, RunConfig, import_plugins
+from runner.config import ConfigError, RunConfig, import_plugins
 
 
 @dataclass(frozen=True)
@@ -22,7 +22,7 @@ class Variant:
     values : {sweep key: value} of this point (empty without a sweep). config : the run's config
     with those values applied (and validated by :class:`RunConfig` itself); for a ceiling variant
     the same in oracle mode. method_params : full, typed parameters per method. keys : the
-    :class:`benchmark.run.sweep.SweepKey` of each swept key. first : the sweep's first point in the
+    :class:`runner.sweep.SweepKey` of each swept key. first : the sweep's first point in the
     run's own mode (its meshes keep the plain file names the gallery reads).
     """
 
@@ -115,7 +115,7 @@ def resolve(config: RunConfig) -> Plan:
         options["data_dir"] = _existing("--data-dir", config.data_dir, "directory")
     if config.list_file is not None:
         options["list_file"] = _existing("--list", config.list_file, "file")
-    from benchmark.run.tasks import load_dataset
+    from runner.tasks import load_dataset
 
     try:
         shapes = list(load_dataset(config.dataset, options).names())[: config.limit]
@@ -124,7 +124,7 @@ def resolve(config: RunConfig) -> Plan:
     if not shapes:
         raise ConfigError(f"dataset '{config.dataset}' has no shapes with these options ({options or 'none'})")
     if load_dataset(config.dataset, options).point_clouds:
-        from benchmark.run.config import DEFAULT_PC_POINTS
+        from runner.config import DEFAULT_PC_POINTS
 
         if config.task != "reconstruct":
             raise ConfigError(f"dataset '{config.dataset}' holds point clouds: use --task reconstruct")
@@ -138,7 +138,7 @@ def resolve(config: RunConfig) -> Plan:
 
 def _train_dirs(config: RunConfig, methods: tuple[str, ...]) -> tuple[str, ...]:
     """The extra training folders of a run with learned reconstruction methods (checked)."""
-    from benchmark.run.training import default_train_dirs
+    from runner.training import default_train_dirs
 
     if config.no_cache:
         raise ConfigError("--no-cache: the learned reconstruction methods keep their trained networks in the "
@@ -175,7 +175,7 @@ def _variants(config: RunConfig, methods: tuple[str, ...]) -> tuple[dict[str, tu
     """The typed sweep and its points: every combination in the run's mode, then (a neural sweep
     with ``ceiling``) the same combinations in oracle mode. Each point's config is rebuilt, so the
     RunConfig checks (grid memory, ranges) and the method/budget checks apply to every value."""
-    from benchmark.run import sweep as sweeps
+    from runner import sweep as sweeps
     from methods.base import METHODS
     from benchmark.params import ParamError
 

@@ -19,7 +19,7 @@ weights entry's lock (``locks/weights_<method>_<key>.lock``, :meth:`RunCaches.fi
 and load the saved weights. With the caches off every job fits for itself.
 
 :func:`code_digest` follows the imports it finds in the source (``import``/``from`` statements,
-also inside functions) through the project's packages (benchmark, methods, datasets) and hashes
+also inside functions) through the project's packages (benchmark, methods, datasets, runner) and hashes
 what every module reached computes: its syntax tree without docstrings, so comments, docstrings
 and layout do not invalidate a cache, while any change of code does. A module that cannot be found raises instead of counting as empty, so a
 renamed module never silently stops invalidating the caches that depend on it.
@@ -43,7 +43,7 @@ from benchmark.field_cache import FieldCache
 from benchmark.storage import CacheStats, CorruptEntry, exclusive_lock, read_checked, write_checked
 
 #: Top-level packages whose modules enter code digests.
-PROJECT_PACKAGES = ("benchmark", "methods", "datasets")
+PROJECT_PACKAGES = ("benchmark", "methods", "datasets", "runner")
 
 
 def _module_file(name: str) -> Path:
@@ -153,7 +153,7 @@ def code_digest(*modules: str) -> str:
 def task_code_digest(spec) -> str:
     """The code that computes a task's result: the job function and everything it imports, and,
     for a job, its method's module (a plugin's too)."""
-    modules = ["benchmark.run.job"]
+    modules = ["runner.job"]
     if spec.kind == "job":
         from methods.base import METHODS
 

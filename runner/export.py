@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from benchmark.run.records import SWEEP_PREFIX, open_run_db
+from runner.records import SWEEP_PREFIX, open_run_db
 from benchmark.schema import CSV_EXCLUDED, csv_lead
 
 
@@ -80,8 +80,8 @@ def export(run_dir: str | Path, db=None, record: dict[str, Any] | None = None,
     A failure while writing the reports is reported on stderr and never loses results.csv.
     """
     import reports
-    from benchmark.run.job import one_line
-    from benchmark.run.rundir import RunDirectory
+    from runner.job import one_line
+    from runner.rundir import RunDirectory
 
     run_dir = Path(run_dir)
     out_dir = Path(out_dir) if out_dir is not None else run_dir

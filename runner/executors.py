@@ -1,4 +1,4 @@
-"""Executors: where a run's tasks run. One job function (``benchmark.run.job.run_task``) serves all.
+"""Executors: where a run's tasks run. One job function (``runner.job.run_task``) serves all.
 
 Every executor has the same two methods::
 
@@ -41,12 +41,11 @@ import sys
 from collections import deque
 from concurrent.futures import FIRST_COMPLETED, wait
 from concurrent.futures.process import BrokenProcessPool
-from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
 from benchmark.registry import Registry
+from runner.provenance import REPO
 
-REPO = Path(__file__).resolve().parents[2]
 
 StageCallback = Callable[..., None]
 
@@ -302,7 +301,7 @@ class RayExecutor:
             pythonpath = os.pathsep.join([str(REPO)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])
             if address:
                 # a cluster may run on other machines: ship the suite's packages with the tasks
-                modules = [str(REPO / m) for m in ("benchmark", "methods", "datasets", "reports")
+                modules = [str(REPO / m) for m in ("benchmark", "methods", "datasets", "reports", "runner")
                            if (REPO / m).is_dir()]
                 ray.init(address=address, runtime_env={"py_modules": modules,
                                                        "env_vars": {"PYTHONPATH": pythonpath}}, **common)
@@ -351,7 +350,7 @@ class RayExecutor:
 # =============================================================================================
 
 
-#: Executor name -> factory taking the run's :class:`benchmark.run.config.RunConfig`.
+#: Executor name -> factory taking the run's :class:`runner.config.RunConfig`.
 EXECUTORS: Registry = Registry("executor")
 def auto_executor(config, tasks: int):
     """The default executor for ``tasks`` tasks (module docstring): process workers on a CPU, one per
@@ -365,7 +364,7 @@ def auto_executor(config, tasks: int):
     return ProcessExecutor(workers=workers, retries=config.retries, threads=config.threads or 1)
 
 
-#: Executor name -> factory taking the run's :class:`benchmark.run.config.RunConfig` and its number of tasks.
+#: Executor name -> factory taking the run's :class:`runner.config.RunConfig` and its number of tasks.
 EXECUTORS: Registry = Registry("executor")
 EXECUTORS.register("auto", auto_executor)
 EXECUTORS.register("local", lambda config, tasks: LocalExecutor(threads=config.threads))

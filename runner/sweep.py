@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from typing import Any, Iterable, Mapping, Sequence
 
 from benchmark.params import Param, ParamError
-from benchmark.run.config import ConfigError, RunConfig
+from runner.config import ConfigError, RunConfig
 
 #: Run settings a sweep may vary, typed by their RunConfig fields' Params.
 RUN_KEYS: dict[str, Param] = RunConfig.sweep_params()

@@ -11,7 +11,8 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
-REPO = Path(__file__).resolve().parents[2]
+#: The checkout: the folder holding run_benchmark.py and the project's packages.
+REPO = Path(__file__).resolve().parents[1]
 
 #: Packages whose versions go into config.json and every job row.
 VERSION_PACKAGES = ("numpy", "torch", "trimesh", "scikit-image", "libigl", "scipy", "pandas", "embreex",

@@ -22,7 +22,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
 
-from benchmark.run.config import ConfigError, RunConfig
+from runner.config import ConfigError, RunConfig
 from benchmark.serialize import dumps
 from benchmark.storage import atomic_write
 
@@ -102,7 +102,7 @@ class RunDirectory:
             except BlockingIOError:
                 holder = os.pread(fd, 4096, 0).decode(errors="replace").strip() or "another process"
                 raise RunDirectoryBusy(f"--out {self.path} is in use by {holder}; wait for it or use another --out") from None
-            from benchmark.run.job import now_iso
+            from runner.job import now_iso
 
             command = " ".join([Path(sys.argv[0]).name] + sys.argv[1:])[:300] if sys.argv else "?"
             os.ftruncate(fd, 0)

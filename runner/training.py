@@ -6,7 +6,7 @@ built-in parts (generator seed :data:`methods.knn_training.DEFAULT_TRAINING_SEED
 built-in test shape by construction and by hash) plus every mesh of the run's ``train_dirs`` (by
 default the Thingi10K folder of ``../shared/data`` where it exists). Cache key: the training set's
 digest (content hashes and names), the method, every budget value, the training seed and the code
-digest of the method's module and the training loop (:func:`benchmark.run.cache.code_digest`).
+digest of the method's module and the training loop (:func:`runner.cache.code_digest`).
 Entries: ``<cache root>/knn_weights/<method>_<key>.pt``, written with a checksum; a job that needs a
 network another job is training waits on the entry's lock (``locks/``) and then loads it.
 """
@@ -18,10 +18,10 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Callable
 
-from benchmark.run.tasks import digest
 from benchmark.storage import CacheStats, CorruptEntry, exclusive_lock, read_checked, write_checked
+from runner.provenance import REPO
+from runner.tasks import digest
 
-REPO = Path(__file__).resolve().parents[2]
 #: Extra training meshes used when a run names none: the Thingi10K meshes of ../shared/data.
 DEFAULT_TRAIN_DIR = REPO.parent / "shared" / "data" / "thingi10k"
 
@@ -40,7 +40,7 @@ def _shapes(count: int, dirs: tuple[str, ...]):
 
 def network_key(method, budget, train_dirs: tuple[str, ...]) -> tuple[str, tuple]:
     """(cache key, training shapes) of the network ``method`` trains at ``budget``."""
-    from benchmark.run.cache import code_digest
+    from runner.cache import code_digest
     from methods.knn_training import DEFAULT_TRAINING_SEED, training_set_digest
 
     shapes = _shapes(budget.training_shapes, tuple(train_dirs))

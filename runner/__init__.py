@@ -1,0 +1,3 @@
+"""The run layer: configuration, tasks, the job function, caches, provenance, driver, executors,
+records, regression and the command line. Imports the foundation (``benchmark``, ``datasets``),
+``methods`` and ``reports``; none of them imports it."""
