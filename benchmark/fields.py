@@ -203,13 +203,12 @@ class ExactFields:
 
         method 'auto' (default): 'crossings' for >= 100,000 points, else 'libigl' (both exact; the
             crossing count has a fixed set-up cost and its cost grows with how many triangles overlap
-            in the x projection; measured 18 s vs ~250 s for 1M near-surface points on a 37k-face ABC
-            mesh, but 14x slower than libigl for 5k points on a mesh with deep x-overlap).
+            in the x projection, so it pays off for many points only).
         method 'crossings': integer signed crossing count along -x rays of the mesh closed
             by its boundary cone, minus the cone's own winding number (libigl, only for open meshes):
             w_M = w_(M+C) - w_C (module docstring). Exact off the surface; a point exactly on the
             surface gets one side (libigl would give the average). Much faster than 'libigl' on CAD
-            meshes (~100 us per point near the surface there).
+            meshes for many points.
         method 'libigl': libigl's exact hierarchical ``winding_number`` (not the fast-winding-number
             approximation, which is off by up to 0.2 on some ABC meshes), in chunks of ``CHUNK``.
         """

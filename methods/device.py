@@ -105,10 +105,9 @@ def flush_denormals() -> Iterator[None]:
     Why: Softplus(beta = 100) computes ``exp(beta x)``, which is denormal wherever ``beta x < -87``,
     and x86 cores take a slow path on every denormal operand. A fitted head has many such
     pre-activations (a SALS head more than an SDF one), so on the CPU this costs time and nothing
-    else: the values flushed lie below float32's smallest normal number (1.2e-38). Measured on one
-    core: a 1,000-step SALS grid fit 33.3 -> 28.5 s with bit-identical weights and losses; the SALS
-    grid query of a fitted ABC part 5.1 -> 4.0 s with the same intersected edges and hit points, the
-    SDF query unchanged. No effect on CUDA tensors. Nested blocks are counted, not restored in turn.
+    else: the values flushed lie below float32's smallest normal number (1.2e-38), and the fitted
+    weights and extracted meshes stay the same (docs/PERFORMANCE.md, section 8). No effect on CUDA
+    tensors. Nested blocks are counted, not restored in turn.
     """
     global _flush_depth
     if _flush_depth == 0:

@@ -64,8 +64,7 @@ DEFAULT_HIT_THRESHOLD = 0.1
 #: The face rules of :func:`edc_extract` (``'fan4'`` is the paper's).
 FACE_RULES = ("fan4", "quad2", "fan4-adaptive")
 #: ``'fan4-adaptive'`` keeps the fan of an edge when its edge point lies within this many grid
-#: spacings h of the plane of its 4 cell vertices (0.02-0.1 measured alike on 3 ABC parts at
-#: 128^3; 0.2 lets part of the thin-wall folds back in).
+#: spacings h of the plane of its 4 cell vertices (the choice: docs/PROTOCOL.md, "E-DC face rules").
 FAN_PLANE_TOLERANCE = 0.05
 
 # ----------------------------------------------------------------------------------------------
@@ -196,7 +195,7 @@ def qef_solve(ata: np.ndarray, rhs: np.ndarray, cutoff: float = DEFAULT_QEF_CUTO
     Returns ``sum over eigenpairs (l_k >= cutoff) of (v_k . r) / l_k v_k``, (K, 3) float64, in closed
     form by the number of kept eigenvalues (eigenvalues by the trigonometric formula, spectral
     projectors by Cayley-Hamilton, see ``_qef_solve_columns``): the same as ``V diag(1/l or 0) V^T r``
-    from ``np.linalg.eigh``, about 10x faster on 100k matrices. A kept/dropped split always has a
+    from ``np.linalg.eigh``, without its per-matrix LAPACK calls. A kept/dropped split always has a
     gap (l_kept >= cutoff > l_dropped), so the projectors are well defined.
     """
     ata = np.asarray(ata, dtype=np.float64)
@@ -358,40 +357,16 @@ def edc_extract(N: int, edge_ids: np.ndarray, s: np.ndarray, normals: np.ndarray
     Face rules and thin walls. Where a cell holds two sheets closer than about one cell
     (a thin wall: its edges carry normals +n and -n from both sides), the QEF has rank 1 and puts
     the cell's vertex between the sheets, so the 4 vertices around an edge are coplanar on a middle
-    plane while the edge point lies on one sheet, 0.1-0.4 h off that plane. The ``'fan4'`` fan
-    around it is a tent; neighbouring tents lean opposite ways, and NDC's sharp-edge test
-    (``|n_p . n_q| < 0.2`` within r = 0.004 D, about 0.8 h at 128^3) flags them all over the wall.
-    Measured at 128^3 in oracle mode, 300k evaluation points, ABC 00014489 (a plate about 0.55 h
-    thick): the fans that carry the false edge points have their edge point a median 0.24 h off the
-    plane of their 4 cell vertices, which are coplanar to 0.03 h (both 0.001 h over all fans), and
-    99% of them touch a cell whose QEF residual is above 0.1 h (8% of all fans). The cause is where
-    the fan's centre lies, not the QEF options: ``qef_cutoff`` 0.01 / 0.5 and ``clamp_to_cell``
-    leave the EF1 at 0.78 / 0.77 / 0.74 (0.77 by default). Centring the fan on the mean of the 4
-    cell vertices instead gives 0.999.
+    plane while the edge point lies on one sheet, off that plane. The ``'fan4'`` fan around it is a
+    tent; neighbouring tents lean opposite ways, and NDC's sharp-edge test flags them all over the
+    wall. The cause is where the fan's centre lies, not the QEF options (the measurements:
+    docs/PROTOCOL.md, "E-DC face rules").
 
     ``'fan4-adaptive'``: the fan where the edge point lies within :data:`FAN_PLANE_TOLERANCE` h of
     the plane of its 4 cell vertices (the plane through their mean, normal to the quad's vector
     area ``(q2 - q0) x (q3 - q1)``), i.e. where it adds no fold; else the 2 triangles of the quad
     split along the diagonal whose two triangles have the more parallel normals (a degenerate quad,
-    zero vector area, is split too). On one flat or smooth sheet every edge keeps its fan (the
-    built-in open part: the same 166,712 faces as ``'fan4'``); 0-3% of the edges of the ABC parts
-    are split. EF1 (edge precision), oracle, 128^3, 300k points:
-
-    ========  =============  =============  =============
-    ABC       fan4           quad2          fan4-adaptive
-    ========  =============  =============  =============
-    00014489  0.773 (0.631)  0.998 (0.998)  0.998 (0.998)
-    00007974  0.796 (0.732)  0.844 (0.818)  0.844 (0.821)
-    00016513  0.994 (0.998)  0.992 (0.998)  0.995 (0.998)
-    ========  =============  =============  =============
-
-    Predicted edge points on 00014489: 44,250 / 26,430 / 26,292 (GT 25,200); CD changes by under
-    1% (3.087 / 3.119 / 3.116 x 1e-3). Over the 22 ABC meshes: mean EF1 0.922 / 0.939 / 0.941,
-    medians 0.996 / 0.995 / 0.996, no shape more than 0.004 below fan4; mean CD x 1e3 2.771 /
-    2.775 / 2.777, NC 0.986 for all three. At 256^3 on 00014489: EF1 0.80 / 0.87 / 0.94 (SDF + MC:
-    0.93; the wall is then about one cell thick and the flatter diagonal matters). Boundary and
-    non-manifold edge counts equal those of ``'fan4'`` on every shape (1,153 / 3,269 on 00014489;
-    the built-in non-manifold part 289 / 2,228, EF1 0.978 -> 0.980).
+    zero vector area, is split too). On one flat or smooth sheet every edge keeps its fan.
 
     Returns
     -------

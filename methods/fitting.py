@@ -50,9 +50,8 @@ class Budget:
     at ``lr_grid`` decaying to ``lr_grid_final``, without weight decay (a decay would pull every
     cell no sample visits to 0, and cells the samples rarely reach toward it); the grid settings
     are empty for ``'mlp'`` budgets and required for ``'grid'`` ones.
-    ``fused_adam``: torch's fused AdamW kernel (the same update to float rounding, ~1e-8 apart; on
-    the CPU it measured 4-7x faster than the default per-tensor loop on the grid's 1.2M values,
-    where the optimizer step was ~40% of a training step). Off for the MLP budgets, whose numbers
+    ``fused_adam``: torch's fused AdamW kernel (the same update to float rounding; much faster than
+    the default per-tensor loop on a feature grid's values). Off for the MLP budgets, whose numbers
     stay those of the default kernel.
     ``log_every``: the loss is checked for NaN/inf and reported to ``progress`` every so many steps.
     ``warmup_fraction``: the first ``round(warmup_fraction * iterations)`` steps ramp both learning

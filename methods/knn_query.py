@@ -25,9 +25,8 @@ from methods.query import edge_inputs, edges_in_points, point_inputs
 
 #: Queries per forward pass, by device type. Each query carries K point features through the
 #: encoders, so a chunk's activations are ``chunk x K x width`` floats: on a CPU the pass is bound by
-#: cache, not arithmetic. Measured (one thread, the ``cpu`` segment network, K = 20, 32,768 random
-#: segments, side by side in one process): chunks of 8,192 took 4.1 s, 2,048: 1.5-2.0 s, 1,024:
-#: 1.8-2.0 s, 512: 1.5-1.7 s, 256: 1.1-1.2 s, 128: 1.3-1.4 s. A GPU wants large chunks.
+#: cache, not arithmetic, and small chunks are fastest (docs/PERFORMANCE.md, section 8). A GPU
+#: wants large chunks.
 CHUNK = {"cpu": 256, "cuda": 16_384}
 DEFAULT_CHUNK = 4_096
 

@@ -82,10 +82,9 @@ class FastSoftplus(nn.Module):
         return f"beta={self.beta}"
 
 
-#: Activation names. ``'softplus'`` (default) is torch's kernel: on this project's 2-core AMD EPYC
-#: machines it measured as fast as or faster than the clamped form (benchmarks/bench_network.py;
-#: no denormal penalty showed up there). ``'softplus-clamped'`` gives the same values with no
-#: denormal exp, for CPUs where torch's kernel hits the slow path.
+#: Activation names. ``'softplus'`` (default) is torch's kernel. ``'softplus-clamped'`` gives the
+#: same values with no denormal exp, for CPUs where torch's kernel hits the slow path
+#: (benchmarks/bench_network.py compares them).
 ACTIVATIONS = {
     "softplus": lambda beta: nn.Softplus(beta=beta),
     "softplus-clamped": lambda beta: FastSoftplus(beta),
@@ -147,11 +146,8 @@ def trilinear(volume: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     -----
     An explicit gather (one ``index_select`` of the 8 corner rows, then a lerp along x, y and z): its
     backward adds each point's 8 weighted gradients into their rows (``index_add``). Chosen over
-    ``torch.nn.functional.grid_sample`` (the same values) by measurement of whole training steps at
-    batch 4,096 (benchmarks/bench_network.py, one core): with the UDF's second-order loss grid_sample
-    took 1.4-1.6x the time (levels 16/32/64) and 2.3-2.5x (16/32/64/128); with a first-order loss
-    the two were within 8%. The slowdown of a 128^3 level is mostly the optimizer's dense pass over
-    its 8.4M values, for either lookup (see ``Budget.fused_adam`` in :mod:`methods.fitting`).
+    ``torch.nn.functional.grid_sample`` (the same values) for the speed of whole training steps,
+    above all with a second-order loss (benchmarks/bench_network.py; docs/PERFORMANCE.md, section 8).
     Differentiable to any order in ``points`` and ``volume`` (the weights are products of the
     fractional coordinates, the features enter linearly); inside a cell the value is linear along
     each axis, so its derivative is piecewise constant.
@@ -259,10 +255,8 @@ class GridNetwork(nn.Module):
     The offset is given explicitly because the head cannot resolve it from the raw endpoints: a grid
     edge at 128^3 is 0.016 long between coordinates of size ~1, so without it the network cannot
     tell an edge from the longer training segments around it and predicts their average hit rate
-    (measured, cpu budget, N = 128: a rotated cube gave 5.5M faces and CD 4.0e-2 without the offset,
-    275k faces and CD 9.7e-3 with it; over 3 ABC parts mean CD 17.2e-3 -> 3.7e-3, ECD 3.5e-2 ->
-    1.7e-2). Still a function of the segment: swapping u and v swaps the two code blocks and
-    negates the offset.
+    (docs/PERFORMANCE.md, section 8). Still a function of the segment: swapping u and v swaps the
+    two code blocks and negates the offset.
 
     The head is ``MLP(k (L C + 3), out_dim, depth, width, beta, activation)``, with the MLP's
     near-zero output initialisation; the grid is built first, then the head (this fixes the

@@ -21,9 +21,7 @@ Sparse coarse-to-fine strategy (the same for every method)
 Edges (coarse and fine) go through :func:`evaluate_point_pairs`: a grid point is an endpoint of up
 to 6 edges, and the segment networks of :mod:`methods.network` are split after their first layer
 into one term per endpoint, so each point is encoded once and an edge costs the rest of the network
-(3 fitted ABC parts at N = 128, grid backbone, 2 threads, medians of 3 interleaved: the fine edges
-took 0.86 / 2.86 / 0.97 s instead of 0.93 / 3.60 / 1.19 s; most of an edge's cost is the head's
-Softplus, which both ways pay).
+(most of an edge's cost is the head's Softplus, which both ways pay; docs/PERFORMANCE.md, section 8).
 
 Fill values where nothing is evaluated ("far"): point fields get the *trilinear upsampling of the
 coarse values* (so a far point keeps the side of the level set its block's corners have: an SDF

@@ -16,8 +16,8 @@ __all__ = ["spatial_order", "nearest_distances", "surface_metrics", "edge_metric
 def spatial_order(points: np.ndarray, cells_per_axis: int = 256) -> np.ndarray:
     """A permutation listing the points cell by cell (x-major cells of a 256^3 grid on their bbox).
 
-    KD-tree queries on spatially sorted points are ~5x faster (cache locality) than on the random
-    order that sampling produces; metrics are order-independent, so :func:`evaluate` sorts.
+    KD-tree queries on spatially sorted points are faster (cache locality) than on the random order
+    that sampling produces; metrics are order-independent, so :func:`evaluate` sorts.
     """
     points = np.asarray(points, dtype=np.float64)
     if len(points) == 0:

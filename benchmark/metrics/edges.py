@@ -36,8 +36,8 @@ def sharp_edge_points(
     ``|n_p . n_q| < dot_threshold`` (``q = p`` never qualifies for unit normals). Exact: every pair
     within ``radius`` that could qualify is tested; no k-NN truncation.
 
-    Method (chosen for speed at n = 1M: a full radius search finds ~20-40 neighbours per point,
-    i.e. 10-20M pairs and 4-6 s per mesh, of which only the few near edges matter):
+    Method (chosen for speed at n = 1M: a full radius search visits every neighbour pair, of which
+    only the few near edges matter):
 
     1. *Conservative cell filter.* Hash the points into cubic cells of side ``s >= radius``; any
        neighbour of ``p`` lies in the 27 cells around p's cell. Per cell c take a representative
