@@ -121,15 +121,31 @@ CHECKPOINT_COLUMNS: tuple[Column, ...] = (
     _c("extra", "TEXT", "bookkeeping"),
 )
 
-TABLES = {"jobs": JOB_COLUMNS, "floor": FLOOR_COLUMNS, "checkpoints": CHECKPOINT_COLUMNS}
-PRIMARY_KEYS = {"jobs": "config_hash", "floor": "floor_hash", "checkpoints": "checkpoint_hash"}
+#: One row per decomposition variant of a neural job (``--decompose``): the job's fitted field with
+#: the components ``exact`` (e.g. 'flags+s') taken from the exact field, extracted and scored.
+COMPONENT_COLUMNS: tuple[Column, ...] = (
+    _c("component_hash", "TEXT PRIMARY KEY", "key"),
+    _c("shape", "TEXT", "key", csv=True),
+    _c("method", "TEXT", "key", csv=True),
+    _c("seed", "INTEGER", "key", csv=True),
+    _c("exact", "TEXT", "key", csv=True),
+    *(c for c in JOB_COLUMNS if c.role in ("metric", "validity")),
+    _c("extract_s", "REAL", "timing"),
+    _c("config_hash", "TEXT", "bookkeeping"),
+    _c("extra", "TEXT", "bookkeeping"),
+)
+
+TABLES = {"jobs": JOB_COLUMNS, "floor": FLOOR_COLUMNS, "checkpoints": CHECKPOINT_COLUMNS,
+          "components": COMPONENT_COLUMNS}
+PRIMARY_KEYS = {"jobs": "config_hash", "floor": "floor_hash", "checkpoints": "checkpoint_hash",
+                "components": "component_hash"}
 
 #: Columns of the traceback/JSON kind that results.csv leaves out (they live in results.db).
 CSV_EXCLUDED = ("traceback", "versions", "info", "extra")
 
 
 def sql_columns(table: str) -> dict[str, str]:
-    """{column: SQLite type} of the fixed columns of ``table`` ('jobs', 'floor' or 'checkpoints')."""
+    """{column: SQLite type} of the fixed columns of ``table`` (a key of :data:`TABLES`)."""
     return {c.name: c.sql for c in TABLES[table]}
 
 

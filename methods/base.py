@@ -29,6 +29,33 @@ from benchmark.registry import Registry
 from benchmark.params import Param, ParamError
 
 
+def median_angle_deg(a: np.ndarray, b: np.ndarray, oriented: bool = False) -> float:
+    """Median angle in degrees between the rows of ``a`` and ``b`` (P, 3), over the rows where both
+    are non-zero (NaN if none). Unoriented (default, for normals of planes): opposite vectors are 0
+    apart, so the angle lies in [0, 90]; ``oriented``: in [0, 180]."""
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    na, nb = np.linalg.norm(a, axis=1), np.linalg.norm(b, axis=1)
+    ok = (na > 0) & (nb > 0)
+    if not ok.any():
+        return float("nan")
+    cos = np.einsum("ij,ij->i", a[ok], b[ok]) / (na[ok] * nb[ok])
+    cos = cos if oriented else np.abs(cos)
+    return float(np.degrees(np.median(np.arccos(np.clip(cos, -1.0, 1.0)))))
+
+
+def signed_hybrid(sign_source: np.ndarray, magnitude_source: np.ndarray, level: float) -> np.ndarray:
+    """``level + sign(sign_source - level) |magnitude_source - level|``: the side of the level set
+    from one field, the distance to it from the other (a grid field's sign/magnitude decomposition;
+    with one field for both, that field, exactly for level 0)."""
+    side = np.sign(np.asarray(sign_source, dtype=np.float32) - np.float32(level))
+    return (np.float32(level) + side * np.abs(np.asarray(magnitude_source, dtype=np.float32) - np.float32(level))).astype(np.float32)
+
+
+def wrong_side_points(fitted: np.ndarray, exact: np.ndarray, level: float) -> int:
+    """Grid points whose fitted value lies on the other side of ``level`` than the exact one."""
+    return int(np.count_nonzero(np.sign(np.asarray(fitted) - level) != np.sign(np.asarray(exact) - level)))
+
+
 @dataclass
 class Extraction:
     """A mesh extracted by a method, canonical frame, plus scalar facts about the extraction
@@ -72,6 +99,10 @@ class Method:
     task: ClassVar[str] = "encode"
     #: Whether the method needs a network trained across shapes (:class:`LearnedPointCloudMethod`).
     learned: ClassVar[bool] = False
+    #: The parts of the grid field an error decomposition may take from the exact field instead of
+    #: the fitted network (:meth:`hybrid_grid`; ``run_benchmark.py --decompose``), e.g. SALS's
+    #: intersection flags, hit positions s and normals. Empty: the method is not decomposed.
+    components: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, **params: Any):
         unknown = sorted(set(params) - set(self.parameters))
@@ -120,6 +151,31 @@ class Method:
     def extract(self, grid_field, N: int) -> Extraction:
         """Turn the grid field into a mesh (canonical frame)."""
         raise NotImplementedError
+
+    # -- error decomposition -------------------------------------------------------------------
+    @classmethod
+    def decompositions(cls) -> list[tuple[str, ...]]:
+        """The sets of components a decomposition takes from the exact field: each component alone,
+        every component but one (with three or more), and all of them (which must reproduce the
+        oracle field exactly); in :attr:`components` order, no repeats, never the empty set (that is
+        the fitted field itself)."""
+        comps = cls.components
+        sets = [(c,) for c in comps]
+        if len(comps) >= 3:
+            sets += [tuple(d for d in comps if d != c) for c in comps]
+        if len(comps) >= 2:
+            sets.append(tuple(comps))
+        return sets
+
+    def hybrid_grid(self, fitted, exact, exact_parts: tuple[str, ...], model, N: int, device=None):
+        """The grid field with the components ``exact_parts`` from ``exact`` (:meth:`oracle_grid`)
+        and the others from ``fitted`` (:meth:`neural_grid`) or from ``model`` where ``fitted`` does
+        not hold them (e.g. the network's s on an edge only the exact field intersects)."""
+        raise NotImplementedError
+
+    def component_errors(self, fitted, exact, N: int) -> dict[str, float]:
+        """Errors of the fitted field's components against the exact ones (metric columns)."""
+        return {}
 
     def describe(self) -> dict[str, Any]:
         return {"name": self.name, "extractor": self.extractor, "input": self.input_kind, "params": dict(self.params)}

@@ -17,10 +17,10 @@ from scipy.special import expit
 import torch
 import torch.nn.functional as F
 
-from methods.base import Extraction, Method, register_method
-from methods.marching_cubes import marching_cubes_grid
 from benchmark.params import Param
 from methods import query
+from methods.base import Extraction, Method, register_method, signed_hybrid, wrong_side_points
+from methods.marching_cubes import marching_cubes_grid
 
 
 @register_method
@@ -55,6 +55,16 @@ class BOFMethod(Method):
         logits, _, info = query.sparse_grid_points(model, N, near, device, stride=self.params["stride"])
         prob = expit(logits[..., 0].astype(np.float64))
         return prob.astype(np.float32), {"query_fraction": info.fraction}
+
+    components = ("sign", "magnitude")
+
+    def hybrid_grid(self, fitted, exact, exact_parts, model, N, device=None):
+        hybrid = signed_hybrid(exact if "sign" in exact_parts else fitted,
+                               exact if "magnitude" in exact_parts else fitted, self.params["level"])
+        return np.clip(hybrid, 0.0, 1.0)
+
+    def component_errors(self, fitted, exact, N):
+        return {"wrong_side_points": wrong_side_points(fitted, exact, self.params["level"])}
 
     def extract(self, grid_field, N) -> Extraction:
         V, Fc = marching_cubes_grid(np.asarray(grid_field), level=self.params["level"], inside="high")

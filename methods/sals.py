@@ -35,10 +35,10 @@ from scipy.special import expit
 import torch
 import torch.nn.functional as F
 
-from benchmark.timing import record, stage
-from methods.base import Extraction, Method, register_method
 from benchmark.params import Param
+from benchmark.timing import record, stage
 from methods import query
+from methods.base import Extraction, Method, median_angle_deg, register_method
 
 #: Weight of the s term.
 S_WEIGHT = 10.0
@@ -81,6 +81,14 @@ def nearer_endpoint_normals(s: np.ndarray, grad: np.ndarray) -> np.ndarray:
     g = np.where((s > 0.5)[:, None], grad[:, :3], grad[:, 3:])
     norm = np.linalg.norm(g, axis=1, keepdims=True)
     return np.divide(g, norm, out=np.zeros_like(g), where=norm > 0)
+
+
+def _positions(ids: np.ndarray, table: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For sorted unique ``table``: which of ``ids`` it holds (bool mask) and where (indices into
+    ``table`` of the held ones)."""
+    at = np.searchsorted(table, ids).clip(max=max(len(table) - 1, 0))
+    held = (at < len(table)) & (table[at] == ids) if len(table) else np.zeros(len(ids), dtype=bool)
+    return held, at[held]
 
 
 @register_method
@@ -157,6 +165,46 @@ class SALSMethod(Method):
                 _, g = query.evaluate_with_input_grad(model, query.edge_inputs(N, ids), 1, device)
                 normals = nearer_endpoint_normals(s, g)
         return {"edge_ids": ids, "s": s, "normals": normals}, {"query_fraction": info.fraction}
+
+    components = ("flags", "s", "normals")
+
+    def fitted_edges(self, model, N: int, ids: np.ndarray, device=None) -> tuple[np.ndarray, np.ndarray | None]:
+        """The network's s (E,) and, with ``normals``, its unit normals (E, 3) on the grid edges ``ids``."""
+        inputs = query.edge_inputs(N, ids)
+        if not self.params["normals"]:
+            return expit(query.evaluate(model, inputs, device)[:, 1].astype(np.float64)).astype(np.float32), None
+        out, g = query.evaluate_with_input_grad(model, inputs, 1, device)
+        s = expit(out[:, 1].astype(np.float64)).astype(np.float32)
+        return s, nearer_endpoint_normals(s, g)
+
+    def hybrid_grid(self, fitted, exact, exact_parts, model, N, device=None):
+        ids = exact["edge_ids"] if "flags" in exact_parts else fitted["edge_ids"]
+        in_fitted, at_fitted = _positions(ids, fitted["edge_ids"])
+        s = np.empty(len(ids), dtype=np.float32)
+        normals = np.empty((len(ids), 3), dtype=np.float32) if self.params["normals"] else None
+        s[in_fitted] = fitted["s"][at_fitted]
+        if normals is not None:
+            normals[in_fitted] = fitted["normals"][at_fitted]
+        if not in_fitted.all():  # edges the network's own flags left out: its values there
+            s[~in_fitted], missing_normals = self.fitted_edges(model, N, ids[~in_fitted], device)
+            if normals is not None:
+                normals[~in_fitted] = missing_normals
+        in_exact, at_exact = _positions(ids, exact["edge_ids"])  # false hits have no exact value: theirs stay
+        if "s" in exact_parts:
+            s[in_exact] = exact["s"][at_exact]
+        if "normals" in exact_parts and normals is not None:
+            normals[in_exact] = exact["normals"][at_exact]
+        return {"edge_ids": ids, "s": s, "normals": normals}
+
+    def component_errors(self, fitted, exact, N):
+        both, at_fitted, at_exact = np.intersect1d(fitted["edge_ids"], exact["edge_ids"], assume_unique=True,
+                                                   return_indices=True)
+        errors = {"hit_edges": len(both), "false_hit_edges": len(fitted["edge_ids"]) - len(both),
+                  "missed_edges": len(exact["edge_ids"]) - len(both),
+                  "s_error_h": float(np.abs(fitted["s"][at_fitted] - exact["s"][at_exact]).mean()) if len(both) else np.nan}
+        if fitted.get("normals") is not None:
+            errors["normal_error_deg"] = median_angle_deg(fitted["normals"][at_fitted], exact["normals"][at_exact])
+        return errors
 
     def extract(self, grid_field, N) -> Extraction:
         from methods.edc import edc_extract

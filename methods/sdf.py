@@ -14,10 +14,11 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from methods.base import Extraction, Method, register_method
-from methods.marching_cubes import marching_cubes_grid
+from benchmark.grid import spacing
 from benchmark.params import Param
 from methods import query
+from methods.base import Extraction, Method, register_method, signed_hybrid, wrong_side_points
+from methods.marching_cubes import marching_cubes_grid
 
 #: Loss clamp of the signed distance, canonical units.
 CLAMP = 0.1
@@ -50,6 +51,18 @@ class SDFMethod(Method):
         near = query.near_level(self.params["level"], query.block_half_diagonal(N, self.params["stride"]))
         values, _, info = query.sparse_grid_points(model, N, near, device, stride=self.params["stride"])
         return values[..., 0], {"query_fraction": info.fraction}
+
+    components = ("sign", "magnitude")
+
+    def hybrid_grid(self, fitted, exact, exact_parts, model, N, device=None):
+        return signed_hybrid(exact if "sign" in exact_parts else fitted,
+                             exact if "magnitude" in exact_parts else fitted, self.params["level"])
+
+    def component_errors(self, fitted, exact, N):
+        h = spacing(N)
+        band = np.abs(exact) < 2.0 * h
+        return {"wrong_side_points": wrong_side_points(fitted, exact, self.params["level"]),
+                "sdf_error_h": float(np.abs(fitted[band] - exact[band]).mean() / h) if band.any() else np.nan}
 
     def extract(self, grid_field, N) -> Extraction:
         V, F = marching_cubes_grid(np.asarray(grid_field), level=self.params["level"], inside="low")

@@ -24,10 +24,10 @@ import torch
 import torch.nn.functional as F
 
 from benchmark.grid import spacing
-from benchmark.timing import record, stage
-from methods.base import Extraction, Method, register_method
 from benchmark.params import Param
+from benchmark.timing import record, stage
 from methods import query
+from methods.base import Extraction, Method, median_angle_deg, register_method
 
 #: Loss clamp of the distance, canonical units.
 CLAMP = 0.1
@@ -93,6 +93,29 @@ class UDFMethod(Method):
             return np.maximum(query.evaluate(model, np.asarray(points, dtype=np.float32), device)[:, 0], 0.0)
 
         return {"udf": d, "grad": grad, "udf_at": udf_at}, {"query_fraction": info.fraction}
+
+    components = ("values", "gradients")
+
+    def hybrid_grid(self, fitted, exact, exact_parts, model, N, device=None):
+        source = exact if "values" in exact_parts else fitted
+        if "gradients" in exact_parts:
+            grad = exact["grad"]
+        else:  # the network's gradients where these values need them (band < 2h) and it has none yet
+            grad = fitted["grad"].copy()
+            ijk = np.argwhere((source["udf"] < 2.0 * spacing(N)) & (fitted["udf"] >= 2.0 * spacing(N)))
+            if len(ijk):
+                _, g = query.evaluate_with_input_grad(model, query.point_inputs(N, ijk), 0, device)
+                norm = np.linalg.norm(g, axis=1, keepdims=True)
+                grad[tuple(ijk.T)] = np.divide(g, norm, out=np.zeros_like(g), where=norm > 0)
+        return {"udf": source["udf"], "grad": grad, "udf_at": source["udf_at"]}
+
+    def component_errors(self, fitted, exact, N):
+        h = spacing(N)
+        band = exact["udf"] < 2.0 * h
+        if not band.any():
+            return {"udf_error_h": np.nan, "gradient_error_deg": np.nan}
+        return {"udf_error_h": float(np.abs(fitted["udf"][band] - exact["udf"][band]).mean() / h),
+                "gradient_error_deg": median_angle_deg(fitted["grad"][band], exact["grad"][band], oriented=True)}
 
     def extract(self, grid_field, N) -> Extraction:
         from methods.meshudf import meshudf_extract

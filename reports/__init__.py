@@ -41,7 +41,8 @@ __all__ = ["write_reports", "compare_runs", "render_mesh"]
 
 def write_reports(results: pd.DataFrame, floor: pd.DataFrame | None, context: dict, out_dir: Path,
                   meshes_dir: Path | None = None, *, gallery_limit: int = GALLERY_LIMIT,
-                  checkpoints: pd.DataFrame | None = None) -> dict[str, Path]:
+                  checkpoints: pd.DataFrame | None = None,
+                  components: pd.DataFrame | None = None) -> dict[str, Path]:
     """Write the run's tables and report into ``out_dir``; returns {file name: path}.
 
     Tables first (cheap), then report.html, which renders thumbnails from
@@ -49,12 +50,14 @@ def write_reports(results: pd.DataFrame, floor: pd.DataFrame | None, context: di
     ``checkpoints`` (one row per checkpoint of a fit: method, shape, seed, fraction,
     fit_elapsed_s, metrics) adds the anytime curves to the report. A sweep run's tables and plots
     (:mod:`reports.sweep`) come first; the ordinary tables get only the jobs of the run's mode
-    (a neural sweep's oracle ceiling jobs are left out of them).
+    (a neural sweep's oracle ceiling jobs are left out of them). ``components`` (one row per
+    decomposition variant of a job: method, shape, seed, exact, metrics) adds the decomposition
+    tables (:mod:`reports.decomposition`) to summary.md and the report.
     """
     out_dir = Path(out_dir)
     context, results = check_context(context), check_results(results)
     sweep = build_sweep(results, context)
-    summary = build_summary(run_mode_results(results, context), floor, context)
+    summary = build_summary(run_mode_results(results, context), floor, context, components)
     paths = write_summary(summary, context, out_dir)
     paths.update(write_sweep(sweep, context, out_dir) if sweep is not None else {})
     timing_paths, timing = write_timing(summary.results, context, out_dir)

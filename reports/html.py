@@ -329,6 +329,9 @@ def write_html(path: Path, summary: Summary, timing: pd.DataFrame, context: dict
          + (f'<h4>{esc(t["unscored"].title)}</h4>' + table_html(t["unscored"], "compact") + notes_html(t["unscored"])
             if "unscored" in t else "")),
         *([("anytime", "Anytime curves", _anytime_html(checkpoints, summary, colors))] if checkpoints is not None else []),
+        *([("decomposition", "Error decomposition", table_html(t["decomposition"]) + notes_html(t["decomposition"])
+            + (table_html(t["component-errors"]) + notes_html(t["component-errors"]) if "component-errors" in t else ""))]
+          if "decomposition" in t else []),
         ("timing", "Timing", _timing_html(timing, context, results)),
         ("failed", f"Failed jobs ({n_failed})", _failed_html(summary)),
         ("protocol", "Protocol", _protocol_html(context) + context_html),

@@ -19,6 +19,7 @@ import numpy as np
 import pandas as pd
 
 from benchmark.schema import columns as schema_columns
+from reports.decomposition import decomposition_tables
 from reports.frames import as_bool, check_floor, check_results, numeric, ok_jobs, one_line, unscored_jobs, without_unscored
 from reports.protocol import check_context, headline_metrics, protocol_caption, report_title
 from reports.statistics import AGGREGATION, Statistics, method_statistics, statistic_table, statistics_frame
@@ -175,8 +176,10 @@ def failed_jobs(results: pd.DataFrame) -> pd.DataFrame:
     return bad[["shape", "method", "seed", "error"]].reset_index(drop=True)
 
 
-def build_summary(results: pd.DataFrame, floor: pd.DataFrame | None, context: dict) -> Summary:
-    """Check the frames and the context, compute the statistics and build every table of one run."""
+def build_summary(results: pd.DataFrame, floor: pd.DataFrame | None, context: dict,
+                  components: pd.DataFrame | None = None) -> Summary:
+    """Check the frames and the context, compute the statistics and build every table of one run
+    (with ``components``, the rows of a decomposed run, its decomposition tables too)."""
     context = check_context(context)
     results = check_results(results)
     floor = check_floor(floor)
@@ -199,6 +202,7 @@ def build_summary(results: pd.DataFrame, floor: pd.DataFrame | None, context: di
     unscored = unscored_table(results, methods, caption)
     if unscored is not None:
         tables["unscored"] = unscored
+    tables.update(decomposition_tables(results, components, metrics, methods, caption))
     return Summary(results, floor, metrics, methods, shapes, stats, tables, caption, failed_jobs(results), rows)
 
 

@@ -100,6 +100,7 @@ def build_parser() -> argparse.ArgumentParser:
     setting("threads", metavar="T")
     setting("retries", metavar="R")
     setting("checkpoints", type=_comma_list, metavar="F1,F2,...")
+    setting("decompose", action="store_const", const=True)
     setting("method_params", action="append", metavar="METHOD.NAME=VALUE")
     setting("budget_params", action="append", metavar="NAME=VALUE")
     setting("sweep", action="append", metavar="KEY=V1,V2,...")

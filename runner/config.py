@@ -133,6 +133,12 @@ class RunConfig:
         "(see --no-ceiling)", kind=dict, item=tuple)
     ceiling: bool = _setting(
         "identity", True, "a neural sweep also runs the same sweep on the exact field (its oracle ceiling)")
+    decompose: bool = _setting(
+        "identity", False, "neural mode: also extract each fitted field with parts of it taken from the exact field "
+        "(SALS: intersection flags, hit positions s, normals; UDF: values, gradients; SDF and BOF: sign, "
+        "magnitude), each set scored as a row of its own (results.db table components, components.csv, the "
+        "decomposition tables of summary.md and report.html), and record the fitted components' errors "
+        "(false-hit and missed edges, s and normal errors, ...) in the job's row")
     methods: tuple[str, ...] = _setting("scope", (), "methods to run (default: every registered method)", item=str)
     seeds: tuple[int, ...] = _setting(
         "scope", (0,), "seeds in [0, 2^63) (default 0); each seed is a separate job per shape and method "
@@ -209,6 +215,8 @@ class RunConfig:
             raise ConfigError("--pc-points and --pc-noise apply to --task reconstruct")
         if self.task == "reconstruct" and (self.mode != "neural" or self.checkpoints):
             raise ConfigError("--mode oracle and --checkpoints apply to --task encode")
+        if self.decompose and (self.mode != "neural" or self.task != "encode"):
+            raise ConfigError("--decompose needs --mode neural and --task encode (it splits a fitted field's error)")
         if self.budget_params and self.mode != "neural":
             raise ConfigError("--budget-param needs --mode neural (oracle mode fits nothing)")
         swept = tuple(self.sweep.get("seed", ()))

@@ -54,9 +54,11 @@ def record_result(db: ResultsDB, run_dir: RunDirectory, result: TaskResult, firs
                         "gt_vertices": result.shape_info.get("gt_vertices"),
                         "gt_faces": result.shape_info.get("gt_faces"), **common}, result.metrics, result.timings)
         return
+    job = {"shape": spec.shape, "method": spec.method, "seed": spec.seed}
     if result.checkpoints:  # before the job row: an ok job row always has its checkpoints
-        db.write_checkpoints(result.key, {"shape": spec.shape, "method": spec.method, "seed": spec.seed},
-                             result.checkpoints)
+        db.write_checkpoints(result.key, job, result.checkpoints)
+    if result.components:  # and its decomposition rows
+        db.write_components(result.key, job, result.components)
     db.write_job({
         "config_hash": result.key, "method": spec.method, "mode": spec.mode, "traceback": result.traceback,
         "params": spec.params, "budget": spec.budget, "grid": spec.grid, "fit_loss": result.fit_loss,

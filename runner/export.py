@@ -45,10 +45,12 @@ def table_frame(db, table: str, record: dict[str, Any]) -> pd.DataFrame:
         mode = record.get("config", {}).get("mode")
         by += [("mode", [mode, "oracle"])] + [(f"{SWEEP_PREFIX}{k}", list(v)) for k, v in sweep_of(record).items()
                                                if f"{SWEEP_PREFIX}{k}" in df.columns]
-    if table in ("jobs", "checkpoints"):
+    if table in ("jobs", "checkpoints", "components"):
         by += [("method", resolved.get("methods", [])), ("seed", record.get("config", {}).get("seeds", []))]
     if table == "checkpoints":
         by.append(("fraction", sorted(set(df["fraction"].dropna()))))
+    if table == "components":
+        by.append(("exact", list(dict.fromkeys(df["exact"]))))
     return _ordered(df, by)
 
 
@@ -92,6 +94,7 @@ def export(run_dir: str | Path, db=None, record: dict[str, Any] | None = None,
     try:
         results, floor = table_frame(db, "jobs", record), table_frame(db, "floor", record)
         checkpoints = table_frame(db, "checkpoints", record)
+        components = table_frame(db, "components", record)
     finally:
         if own:
             db.close()
@@ -101,9 +104,13 @@ def export(run_dir: str | Path, db=None, record: dict[str, Any] | None = None,
     if len(checkpoints):
         checkpoints.to_csv(out_dir / "checkpoints.csv", index=False, float_format="%.9g")
         written["checkpoints"] = out_dir / "checkpoints.csv"
+    if len(components):
+        components.to_csv(out_dir / "components.csv", index=False, float_format="%.9g")
+        written["components"] = out_dir / "components.csv"
     try:
         written["reports"] = reports.write_reports(results, floor, report_context(record), out_dir, run_dir / "meshes",
-                                                   checkpoints=checkpoints if len(checkpoints) else None)
+                                                   checkpoints=checkpoints if len(checkpoints) else None,
+                                                   components=components if len(components) else None)
     except Exception as exc:  # noqa: BLE001 -- the results are safe in results.db / results.csv
         print(f"salsbench: writing reports failed: {one_line(exc)}", file=sys.stderr)
         written["reports"] = None

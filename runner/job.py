@@ -40,6 +40,7 @@ class TaskResult:
     timings : ``<stage>_s`` seconds; cache : cache kinds served; cache_rejected : damaged entries
     recomputed; info : scalar facts (fit steps, samples/s, query fraction, intersected edges, ...);
     checkpoints : one dict per checkpoint of the fit (fraction, step, fit_elapsed_s, metrics, timings).
+    components : one dict per decomposition variant (exact, metrics, extract_s).
     """
 
     kind: str
@@ -58,6 +59,7 @@ class TaskResult:
     cache: list = field(default_factory=list)
     cache_rejected: list = field(default_factory=list)
     checkpoints: list = field(default_factory=list)
+    components: list = field(default_factory=list)
     info: dict = field(default_factory=dict)
     device: str | None = None
     host: str | None = None
@@ -201,14 +203,15 @@ def _job_body(spec: JobSpec, shape, device, timer: StageTimer, result: TaskResul
                               "seed": spec.seed, "code": fit_code_digest(method), "fit_params": method.fit_params()})
     mesh_key = digest({"shape": result.shape_hash, "method": spec.method, "params": method.params, "mode": spec.mode,
                        "grid": spec.grid, "weights": weights_key, "code": extraction_code_digest(method)})
-    cached = None if spec.checkpoints else caches.load_mesh(spec.method, mesh_key)  # checkpoints need the fit
+    # checkpoints need the fit, a decomposition the fitted field
+    cached = None if spec.checkpoints or spec.decompose else caches.load_mesh(spec.method, mesh_key)
     if cached is not None:
         pred_V, pred_F, timings, info, result.fit_loss = cached
         for key, seconds in timings.items():  # the stage times of the job that computed the mesh
             timer.add(key, seconds)
         result.info.update(info, fitted=0)  # the facts of the job that computed it, but no fit here
     else:
-        grid_field, facts = _grid_field(spec, method, shape, device, caches, weights_key, result, report)
+        grid_field, facts, model, fields = _grid_field(spec, method, shape, device, caches, weights_key, result, report)
         report("extracting")
         with stage("extract"):
             extraction = method.extract(grid_field, spec.grid)
@@ -220,6 +223,8 @@ def _job_body(spec: JobSpec, shape, device, timer: StageTimer, result: TaskResul
         caches.save_mesh(spec.method, mesh_key, pred_V, pred_F, timings, result.info, result.fit_loss)
     result.cache, result.cache_rejected = list(stats.hits), list(stats.rejected)
     _score(metrics.evaluate, spec, shape, pred_V, pred_F, result, report)
+    if spec.decompose:
+        _decompose(spec, method, shape, fields, model, grid_field, device, caches, result, report)
     if spec.checkpoints and spec.checkpoints[-1] == 1.0:  # the last checkpoint is the job's own result
         result.checkpoints.append({"fraction": 1.0, "step": result.info.get("fit_steps"),
                                    "fit_elapsed_s": result.info.get("fit_loop_s"), **result.metrics,
@@ -227,14 +232,15 @@ def _job_body(spec: JobSpec, shape, device, timer: StageTimer, result: TaskResul
 
 
 def _grid_field(spec: JobSpec, method, shape, device, caches, weights_key, result: TaskResult, report: _Progress):
-    """Neural: sample, label, fit (or cached weights), query; oracle: the exact field on the grid."""
+    """Neural: sample, label, fit (or cached weights), query; oracle: the exact field on the grid.
+    Returns the grid field, its facts, the network (None in oracle mode) and the exact fields."""
     from benchmark.fields import ExactFields
 
     fields = ExactFields(shape.vertices, shape.faces)
     if spec.mode == "oracle":
         report("querying")
         with stage("query"):
-            return method.oracle_grid(fields, spec.grid, caches.fields)
+            return (*method.oracle_grid(fields, spec.grid, caches.fields), None, fields)
     if spec.checkpoints:  # checkpoints need the fit itself
         model = _fit(spec, method, shape, fields, device, caches, weights_key, result, report)
     else:
@@ -247,7 +253,31 @@ def _grid_field(spec: JobSpec, method, shape, device, caches, weights_key, resul
                 model = _fit(spec, method, shape, fields, device, caches, weights_key, result, report)
     report("querying")
     with stage("query"):
-        return method.neural_grid(model, spec.grid, device)
+        return (*method.neural_grid(model, spec.grid, device), model, fields)
+
+
+def _decompose(spec: JobSpec, method, shape, fields, model, fitted, device, caches, result: TaskResult,
+               report: _Progress) -> None:
+    """The fitted field's error split by component: the component errors as metrics of the job, and
+    per set of exact components (:meth:`methods.base.Method.decompositions`) the hybrid field
+    extracted and scored with the job's own metric stream (a row of ``result.components``)."""
+    from benchmark import metrics
+    from benchmark.seeding import job_streams
+
+    report("decomposing")
+    with stage("decompose"):
+        exact, _ = method.oracle_grid(fields, spec.grid, caches.fields)
+        result.metrics.update(method.component_errors(fitted, exact, spec.grid))
+        for parts in method.decompositions():
+            with StageTimer(timer_sync(device)).active() as inner:
+                with stage("extract"):
+                    extraction = method.extract(method.hybrid_grid(fitted, exact, parts, model, spec.grid, device),
+                                                spec.grid)
+                scores = metrics.evaluate(shape.vertices, shape.faces, extraction.vertices, extraction.faces,
+                                          preset=spec.metric_preset, seed=job_streams(shape.content_hash, spec.seed).metrics,
+                                          n_points=spec.eval_points)
+            scores.pop("seconds", None)
+            result.components.append({"exact": "+".join(parts), **scores, "extract_s": inner.seconds["extract_s"]})
 
 
 def _fit(spec, method, shape, fields, device, caches, weights_key, result: TaskResult, report: _Progress):

@@ -11,6 +11,8 @@ Tables (``SCHEMA_VERSION`` 2; columns declared in :mod:`benchmark.schema`):
 * ``floor`` -- one row per shape (GT against a resample of itself), primary key ``floor_hash``.
 * ``checkpoints`` -- one row per checkpoint of a job's fit (``--checkpoints``), primary key
   ``checkpoint_hash`` (job key @ fraction), written with the job's row.
+* ``components`` -- one row per decomposition variant of a neural job (``--decompose``), primary
+  key ``component_hash`` (job key @ exact components), written with the job's row.
 * ``meta`` -- ``key TEXT PK, value TEXT``: ``schema_version``.
 
 Metric and timing keys not declared in the schema get their own column the first time they
@@ -40,6 +42,7 @@ DB_NAME = "results.db"
 JOB_COLUMNS: dict[str, str] = sql_columns("jobs")
 FLOOR_COLUMNS: dict[str, str] = sql_columns("floor")
 CHECKPOINT_COLUMNS: dict[str, str] = sql_columns("checkpoints")
+COMPONENT_COLUMNS: dict[str, str] = sql_columns("components")
 #: Declared columns that hold measured values (metrics, mesh counts, timings).
 MEASURED = {c.name for table in TABLES.values() for c in table if c.role in ("metric", "validity", "timing")}
 
@@ -194,11 +197,24 @@ class ResultsDB:
     def write_checkpoints(self, config_hash: str, fixed: Mapping[str, Any], rows: list[Mapping[str, Any]]) -> None:
         """Replace the checkpoint rows of one job (``rows``: fraction, step, fit_elapsed_s, metrics,
         timings each) in one transaction; ``fixed`` holds the job's shape, method, seed."""
-        flat = [self.flatten({"checkpoint_hash": f"{config_hash}@{r['fraction']:g}", "config_hash": config_hash,
-                              "fraction": r["fraction"], "step": r["step"], **fixed},
-                             [{k: v for k, v in r.items() if k not in ("fraction", "step")}], CHECKPOINT_COLUMNS)
+        self._replace_job_rows("checkpoints", config_hash, fixed, rows, ("fraction", "step"),
+                               lambda r: f"{config_hash}@{r['fraction']:g}")
+
+    def write_components(self, config_hash: str, fixed: Mapping[str, Any], rows: list[Mapping[str, Any]]) -> None:
+        """Replace the decomposition rows of one job (``rows``: exact, metrics, timings each) in one
+        transaction; ``fixed`` holds the job's shape, method, seed."""
+        self._replace_job_rows("components", config_hash, fixed, rows, ("exact",), lambda r: f"{config_hash}@{r['exact']}")
+
+    def _replace_job_rows(self, table: str, config_hash: str, fixed: Mapping[str, Any], rows: list[Mapping[str, Any]],
+                          keys: tuple[str, ...], row_hash) -> None:
+        """The rows of ``table`` that belong to one job, replaced by ``rows`` (their ``keys`` are key
+        columns, the rest metrics and timings) in one transaction."""
+        columns = {"checkpoints": CHECKPOINT_COLUMNS, "components": COMPONENT_COLUMNS}[table]
+        flat = [self.flatten({PRIMARY_KEYS[table]: row_hash(r), "config_hash": config_hash,
+                              **{k: r[k] for k in keys}, **fixed},
+                             [{k: v for k, v in r.items() if k not in keys}], columns)
                 for r in rows]
-        self._commit("checkpoints", flat, delete=("config_hash", config_hash))
+        self._commit(table, flat, delete=("config_hash", config_hash))
 
     # -- reading ----------------------------------------------------------------------------
     def ok_hashes(self, table: str = "jobs") -> set[str]:

@@ -82,7 +82,9 @@ class JobSpec(TaskSpec):
 
     method, params : registry name and full, typed extractor parameters. mode : 'neural' or 'oracle'.
     budget : fitting budget name (None in oracle mode). grid : N. checkpoints : fractions of the fit at
-    which the network is scored too (anytime curves). cache_dir : cache root (None: off).
+    which the network is scored too (anytime curves). decompose : the fitted field is also extracted
+    with each set of its components taken from the exact field (a neural job of a method with
+    components). cache_dir : cache root (None: off).
     device : torch device (None: automatic).
     """
 
@@ -92,6 +94,7 @@ class JobSpec(TaskSpec):
     budget: str | None = None
     grid: int = 128
     checkpoints: tuple[float, ...] = ()
+    decompose: bool = False
     cache_dir: str | None = None
     device: str | None = None
     budget_params: dict = field(default_factory=dict)
@@ -109,6 +112,8 @@ class JobSpec(TaskSpec):
                  "budget": self.budget, "grid": self.grid, "checkpoints": list(self.checkpoints)}
         if self.budget_params:  # only when given: the keys of runs without overrides stay as they were
             ident["budget_params"] = dict(sorted(self.budget_params.items()))
+        if self.decompose:  # likewise
+            ident["decompose"] = True
         if self.task != "encode":  # likewise: encode jobs keep the keys they always had
             ident.update(task=self.task, pc_points=self.pc_points, pc_noise=self.pc_noise)
             if self.budget is not None:  # a learned method: its training set is part of what it computes
@@ -143,6 +148,7 @@ class JobSpec(TaskSpec):
 def build_tasks(plan) -> tuple[list[FloorSpec], list[JobSpec]]:
     """Floor tasks (one per shape and evaluation sample count, first seed) and jobs (shapes x sweep
     points x methods x seeds, table order; a job that several sweep points share appears once)."""
+    from methods.base import METHODS
     from runner.sweep import trains as method_trains, variant_tag
 
     c = plan.config
@@ -169,6 +175,7 @@ def build_tasks(plan) -> tuple[list[FloorSpec], list[JobSpec]]:
                                   budget=vc.budget if trains else None,
                                   budget_params=dict(vc.budget_params) if trains else {}, grid=vc.grid,
                                   eval_points=vc.eval_points, checkpoints=vc.checkpoints, cache_dir=cache_dir,
+                                  decompose=vc.decompose and vc.mode == "neural" and bool(METHODS.get(m).components),
                                   sweep=values, variant=tag, task=vc.task, **extra, **common)
                     jobs.setdefault(job.key, job)
     return list(floors.values()), list(jobs.values())
