@@ -3,7 +3,7 @@
 One :class:`numpy.random.SeedSequence` per (shape, seed)::
 
     root = SeedSequence([seed, int(sha256(shape_hash), 16)])
-    sampler, fitting, metrics = root.spawn(3)
+    sampler, fitting, metrics, calibration = root.spawn(4)
 
 * ``sampler`` -> the ``numpy.random.Generator`` of the shared training sampler
   (:mod:`benchmark.sampler`): every method of a shape and seed sees the same samples.
@@ -12,6 +12,9 @@ One :class:`numpy.random.SeedSequence` per (shape, seed)::
 * ``metrics`` -> the SeedSequence :func:`benchmark.metrics.evaluate` spawns its two sampling
   streams from (child 0: GT samples, child 1: prediction samples), so every prediction of a shape
   and the floor row are scored against the same GT samples.
+* ``calibration`` -> the generator of a method's calibration after its fit
+  (:meth:`methods.base.Method.calibrate`, e.g. SALS's per-shape o threshold). Spawned fourth, so
+  the three streams above are those of a three-way spawn.
 
 The shape enters by its content hash (``benchmark.storage.mesh_hash``), never by its name or position,
 so results do not depend on the order of shapes, the executor or the process.
@@ -43,11 +46,12 @@ def job_seed_sequence(shape_hash: str, seed: int) -> np.random.SeedSequence:
 
 @dataclass(frozen=True)
 class JobStreams:
-    """The three independent streams of one (shape, seed) (module docstring)."""
+    """The independent streams of one (shape, seed) (module docstring)."""
 
     sampler: np.random.SeedSequence
     fitting: np.random.SeedSequence
     metrics: np.random.SeedSequence
+    calibration: np.random.SeedSequence
 
     def sampler_rng(self) -> np.random.Generator:
         return np.random.default_rng(self.sampler)
@@ -58,6 +62,5 @@ class JobStreams:
 
 
 def job_streams(shape_hash: str, seed: int) -> JobStreams:
-    """Spawn the sampler, fitting and metric streams of (shape, seed)."""
-    sampler, fitting, metrics = job_seed_sequence(shape_hash, seed).spawn(3)
-    return JobStreams(sampler, fitting, metrics)
+    """Spawn the sampler, fitting, metric and calibration streams of (shape, seed)."""
+    return JobStreams(*job_seed_sequence(shape_hash, seed).spawn(4))

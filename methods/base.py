@@ -152,6 +152,12 @@ class Method:
         """Turn the grid field into a mesh (canonical frame)."""
         raise NotImplementedError
 
+    def calibrate(self, model, fields, N: int, rng: np.random.Generator, device=None) -> dict[str, Any]:
+        """Settle settings of the neural query from the fitted ``model`` and labels of the exact
+        ``fields`` (as its training targets are), after the fit and before :meth:`neural_grid`;
+        returns scalar facts of the job. Default: nothing to calibrate."""
+        return {}
+
     # -- error decomposition -------------------------------------------------------------------
     @classmethod
     def decompositions(cls) -> list[tuple[str, ...]]:

@@ -35,6 +35,7 @@ from scipy.special import expit
 import torch
 import torch.nn.functional as F
 
+from benchmark.grid import spacing
 from benchmark.params import Param
 from benchmark.timing import record, stage
 from methods import query
@@ -42,6 +43,8 @@ from methods.base import Extraction, Method, median_angle_deg, register_method
 
 #: Weight of the s term.
 S_WEIGHT = 10.0
+#: The paper's hit threshold of o_hat.
+DEFAULT_O_THRESHOLD = 0.1
 #: Default length of the optional grid-edge-like training segments: a 128^3 grid edge, 2 / 127.
 EDGE_LENGTH = 2.0 / 127.0
 
@@ -83,6 +86,54 @@ def nearer_endpoint_normals(s: np.ndarray, grad: np.ndarray) -> np.ndarray:
     return np.divide(g, norm, out=np.zeros_like(g), where=norm > 0)
 
 
+#: Grid edges labelled per calibration, and how far (in grid spacings h, per axis) their lower
+#: endpoints lie from the surface points that seed them.
+CALIBRATION_EDGES = 200_000
+CALIBRATION_BAND = 2.0
+
+
+def calibrated_o_threshold(model, fields, N: int, rng: np.random.Generator, device=None,
+                           n: int = CALIBRATION_EDGES) -> tuple[float, dict]:
+    """The o threshold that maximises the F1 of the network's hit flags on grid edges near the surface.
+
+    ``n`` area-uniform surface points of the exact fields' mesh, each moved by a uniform offset in
+    ``[-CALIBRATION_BAND h, CALIBRATION_BAND h]^3``, pick the grid edge along a random axis that starts
+    at the grid point below them (duplicates dropped); the exact segment field labels each edge (hit
+    or not) and the network gives its o logit. F1 = 2 TP / (2 TP + FP + FN) counts no true negatives,
+    so the far edges of the band do not move it. Returns the probability halfway (in logits) between
+    the last edge kept and the next, and facts: the threshold, the F1 there and at the paper's 0.1,
+    the labelled edges and their hits. With no hit among them the paper's threshold stays.
+    """
+    from benchmark.grid import LOWER, edge_endpoints, ijk_axis_to_edge_index
+    from benchmark.surface import sample_surface
+
+    h = spacing(N)
+    points, _ = sample_surface(fields.vertices, fields.faces, n, rng)
+    near = points + rng.uniform(-CALIBRATION_BAND * h, CALIBRATION_BAND * h, size=points.shape)
+    axis = rng.integers(0, 3, n)
+    ijk = np.floor((near - LOWER) / h).astype(np.int64).clip(0, N - 1)
+    ijk[np.arange(n), axis] = ijk[np.arange(n), axis].clip(max=N - 2)
+    ids = np.unique(ijk_axis_to_edge_index(N, ijk, axis))
+    u, v = edge_endpoints(N, ids)
+    hit, _, _ = fields.segments(u, v)
+    logits = query.evaluate(model, query.edge_inputs(N, ids), device)[:, 0].astype(np.float64)
+    positives = int(hit.sum())
+    facts = {"o_calibration_edges": int(len(ids)), "o_calibration_hits": positives}
+    if positives == 0:
+        return DEFAULT_O_THRESHOLD, {**facts, "o_threshold_calibrated": DEFAULT_O_THRESHOLD}
+    order = np.argsort(-logits, kind="stable")
+    tp = np.cumsum(hit[order])
+    kept = np.arange(1, len(order) + 1)
+    f1 = 2 * tp / (kept + positives)  # 2 TP / (2 TP + FP + FN), FP + TP = kept, FN = positives - TP
+    best = int(np.argmax(f1))
+    cut = logits[order[best]] if best + 1 == len(order) else 0.5 * (logits[order[best]] + logits[order[best + 1]])
+    threshold = float(expit(cut))
+    paper = logits > _logit(DEFAULT_O_THRESHOLD)
+    paper_tp = int((paper & hit).sum())
+    return threshold, {**facts, "o_threshold_calibrated": threshold, "o_calibration_f1": float(f1[best]),
+                       "o_calibration_f1_paper": 2 * paper_tp / (int(paper.sum()) + positives)}
+
+
 def _positions(ids: np.ndarray, table: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """For sorted unique ``table``: which of ``ids`` it holds (bool mask) and where (indices into
     ``table`` of the held ones)."""
@@ -101,7 +152,7 @@ class SALSMethod(Method):
     display_order = 40
     color = "#e4572e"
     parameters = {
-        "o_threshold": Param(0.1, "an edge is intersected when o_hat > this", gt=0, lt=1, neural_only=True),
+        "o_threshold": Param(DEFAULT_O_THRESHOLD, "an edge is intersected when o_hat > this", gt=0, lt=1, neural_only=True),
         "normals": Param(True, "E-DC vertices from the QEF with autograd normals (else mass points)"),
         "qef_cutoff": Param(0.1, "eigenvalues of A^T A below this are dropped in the QEF", ge=0),
         "clamp_to_cell": Param(False, "clip each QEF vertex to its cell (off in the paper)"),
@@ -109,6 +160,10 @@ class SALSMethod(Method):
                        "where its edge point lies on the plane of the 4 cell vertices, else 2 triangles "
                        "(fan4-adaptive: no thin-wall folds, see methods.edc.edc_extract)",
                        choices=("fan4", "quad2", "fan4-adaptive")),
+        "o_calibration": Param(False, "after the fit, set o_threshold per shape to the value that maximises the F1 "
+                               "of the network's hit flags on grid edges near the surface, labelled by the exact "
+                               "field as the training segments are: a deviation from the paper (off)",
+                               neural_only=True),
         "o_low": Param(0.02, "coarse edges with o_hat > this mark blocks for the sparse query", gt=0, lt=1, neural_only=True),
         "stride": Param(query.DEFAULT_STRIDE, "coarse stride of the sparse query", ge=1, neural_only=True),
         "edge_segments": Param(0.0, "fraction of the training segments replaced by grid-edge-like ones "
@@ -148,8 +203,26 @@ class SALSMethod(Method):
         ids = np.flatnonzero(ef.hit)
         return {"edge_ids": ids, "s": ef.s[ids], "normals": ef.normal[ids]}, {}
 
+    def __init__(self, **params):
+        super().__init__(**params)
+        self.calibrated_threshold: float | None = None
+
+    def calibrate(self, model, fields, N, rng, device=None):
+        self.calibrated_threshold = None
+        if not self.params["o_calibration"]:
+            return {}
+        with stage("calibrate"):
+            threshold, facts = calibrated_o_threshold(model, fields, N, rng, device)
+        self.calibrated_threshold = threshold
+        return facts
+
+    def o_threshold(self) -> float:
+        """The hit threshold of the neural query: the calibrated one after :meth:`calibrate`, else ``o_threshold``."""
+        return self.params["o_threshold"] if self.calibrated_threshold is None else self.calibrated_threshold
+
     def neural_grid(self, model, N, device=None):
-        low = _logit(self.params["o_low"])
+        threshold = self.o_threshold()
+        low = _logit(min(self.params["o_low"], threshold))
 
         def near(values):
             return values[:, 0] > low
@@ -157,7 +230,7 @@ class SALSMethod(Method):
         with stage("edges"):
             out, _, info = query.sparse_grid_edges(model, N, near, device, stride=self.params["stride"],
                                                    edge_fill=np.array([-30.0, 0.0], dtype=np.float32))
-            ids = np.flatnonzero(out[:, 0] > _logit(self.params["o_threshold"]))
+            ids = np.flatnonzero(out[:, 0] > _logit(threshold))
             s = expit(out[ids, 1].astype(np.float64)).astype(np.float32)
         normals = None
         if self.params["normals"] and len(ids):

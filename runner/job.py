@@ -251,9 +251,19 @@ def _grid_field(spec: JobSpec, method, shape, device, caches, weights_key, resul
                 model, result.fit_loss = cached
             else:
                 model = _fit(spec, method, shape, fields, device, caches, weights_key, result, report)
+    result.info.update(_calibrate(spec, method, shape, fields, model, device))
     report("querying")
     with stage("query"):
         return (*method.neural_grid(model, spec.grid, device), model, fields)
+
+
+def _calibrate(spec: JobSpec, method, shape, fields, model, device) -> dict:
+    """The method's calibration of its fitted ``model`` (:meth:`methods.base.Method.calibrate`)
+    with the job's calibration stream."""
+    from benchmark.seeding import job_streams
+
+    rng = np.random.default_rng(job_streams(shape.content_hash, spec.seed).calibration)
+    return method.calibrate(model, fields, spec.grid, rng, device)
 
 
 def _decompose(spec: JobSpec, method, shape, fields, model, fitted, device, caches, result: TaskResult,
@@ -303,6 +313,7 @@ def _fit(spec, method, shape, fields, device, caches, weights_key, result: TaskR
         t0 = time.perf_counter()
         report("checkpoint", step=step)
         with StageTimer(timer_sync(device)).active() as inner:
+            _calibrate(spec, method, shape, fields, model, device)
             with stage("query"):
                 grid_field, _ = method.neural_grid(model, spec.grid, device)
             with stage("extract"):

@@ -102,3 +102,41 @@ def test_every_exact_component_reproduces_the_oracle_result_exactly(tmp_path):
     summary = (tmp_path / "neural" / "summary.md").read_text()
     assert "## Error decomposition" in summary and "exact flags, s, normals" in summary
     assert "Error decomposition" in (tmp_path / "neural" / "report.html").read_text()
+
+
+class _PlaneEdges:
+    """A stand-in segment network for the plane z = Z0: o logit +5 on edges that cross it, +1 on the
+    other z-edges within one spacing of it (false hits of a blurred o), -5 elsewhere."""
+
+    def __init__(self, z0: float, h: float):
+        self.z0, self.h = z0, h
+
+    def __call__(self, x):
+        import torch
+
+        uz, vz = x[:, 2], x[:, 5]
+        crosses = (uz - self.z0) * (vz - self.z0) < 0
+        near = ((uz - self.z0).abs() < self.h) & ((vz - uz).abs() > 0)
+        o = torch.where(crosses, 5.0, torch.where(near, 1.0, -5.0))
+        return torch.stack([o, torch.zeros_like(o)], dim=1)
+
+    def parameters(self):
+        import torch
+
+        return iter([torch.zeros(1)])
+
+
+def test_the_calibrated_o_threshold_keeps_exactly_the_edges_that_cross_the_surface():
+    from benchmark.fields import ExactFields
+    from benchmark.grid import spacing
+    from methods.sals import calibrated_o_threshold
+
+    N, z0 = 32, 0.1 + 1e-3  # the plane off the grid's planes
+    V = np.array([[-1.5, -1.5, z0], [1.5, -1.5, z0], [1.5, 1.5, z0], [-1.5, 1.5, z0]])  # beyond the cube
+    F = np.array([[0, 1, 2], [0, 2, 3]])
+    model = _PlaneEdges(z0, spacing(N))
+    threshold, facts = calibrated_o_threshold(model, ExactFields(V, F), N, np.random.default_rng(0), n=20_000)
+    # hits at +5, false hits at +1: the best cut lies halfway, logit 3; F1 1 there, below 1 at 0.1
+    assert threshold == pytest.approx(1 / (1 + np.exp(-3.0)))
+    assert facts["o_calibration_f1"] == 1.0 and facts["o_calibration_f1_paper"] < 0.8
+    assert 0 < facts["o_calibration_hits"] < facts["o_calibration_edges"]
