@@ -107,6 +107,8 @@ class Budget:
 #: (levels 16/32/64 x 4 channels, raw xyz concatenated, a 3 x 64 Softplus head), AdamW at 1e-2 for grid
 #: and head after a 5 % linear warm-up, cosine-decayed to 1e-4 at the last of 3,000 steps of 4,096
 #: samples drawn from 1M. *tiny-grid*: the grid backbone at test/CI size (the neural regression tier).
+#: *cpu-mlp*: the cpu budget's fit seconds spent on a plain Softplus MLP (5 x 128, no grid; 1,200 steps
+#: of 4,096 from 1M at the paper's lr 1e-3, cosine-decayed): the backbone comparison (``--recipe backbone``).
 BUDGETS: Registry[Budget] = Registry("budget")
 for _budget in (
     Budget("paper", depth=9, width=512, iterations=100_000, batch_size=10_000, num_samples=10_000_000,
@@ -118,6 +120,8 @@ for _budget in (
     Budget("cpu", depth=3, width=64, iterations=3_000, batch_size=4_096, num_samples=1_000_000,
            lr=1e-2, lr_final=1e-4, log_every=50, backbone="grid", grid_resolutions=(16, 32, 64),
            grid_channels=4, lr_grid=1e-2, lr_grid_final=1e-4, fused_adam=True, warmup_fraction=0.05),
+    Budget("cpu-mlp", depth=5, width=128, iterations=1_200, batch_size=4_096, num_samples=1_000_000,
+           lr=1e-3, log_every=50),
     Budget("tiny-grid", depth=3, width=32, iterations=250, batch_size=2_048, num_samples=100_000,
            lr=1e-2, lr_final=1e-4, log_every=25, backbone="grid", grid_resolutions=(16, 32, 64),
            grid_channels=4, lr_grid=1e-2, lr_grid_final=1e-4, fused_adam=True, warmup_fraction=0.05),

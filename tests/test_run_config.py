@@ -69,5 +69,5 @@ def test_resolve_types_method_params_and_lists_shapes():
     assert len(plan.shapes) == 2 and plan.budget is None and plan.eval_points == 1_000_000
     with pytest.raises(ConfigError, match=r"sals.o_threshold='2': expected float in \(0, 1\)"):
         resolve(RunConfig(mode="oracle", methods=("sals",), method_params={"sals": {"o_threshold": "2"}}))
-    with pytest.raises(ConfigError, match="unknown budget 'huge'; known budgets: paper, quick, tiny, cpu, tiny-grid"):
+    with pytest.raises(ConfigError, match="unknown budget 'huge'; known budgets: paper, quick, tiny, cpu, cpu-mlp, tiny-grid"):
         resolve(RunConfig(budget="huge"))
