@@ -55,7 +55,9 @@ def test_budgets_are_data_and_paper_matches_spec():
     assert (paper.depth, paper.width, paper.beta) == (9, 512, 100.0)
     assert (paper.iterations, paper.batch_size, paper.num_samples) == (100_000, 10_000, 10_000_000)
     assert (paper.lr, paper.lr_final) == (1e-3, 1e-5)
-    assert set(BUDGETS) == {"paper", "quick", "tiny", "cpu", "tiny-grid"}
+    assert set(BUDGETS) == {"paper", "quick", "tiny", "cpu", "cpu-mlp", "tiny-grid"}
+    cpu, mlp = BUDGETS["cpu"], BUDGETS["cpu-mlp"]  # the backbone comparison: the same samples, no grid
+    assert (mlp.backbone, mlp.batch_size, mlp.num_samples) == ("mlp", cpu.batch_size, cpu.num_samples)
     assert get_budget("tiny") is BUDGETS["tiny"]
     with pytest.raises(ValueError, match="known budgets: paper, quick, tiny, cpu"):
         get_budget("huge")
