@@ -107,33 +107,28 @@ FLOOR_COLUMNS: tuple[Column, ...] = (
     _c("extra", "TEXT", "bookkeeping"),
 )
 
+def _per_job_columns(key: str, own: tuple[Column, ...]) -> tuple[Column, ...]:
+    """The columns of a table with several rows per job: its primary key, the job's shape, method and
+    seed, the table's ``own`` columns, the job table's metric and validity columns, the job key."""
+    return (_c(key, "TEXT PRIMARY KEY", "key"), _c("shape", "TEXT", "key", csv=True),
+            _c("method", "TEXT", "key", csv=True), _c("seed", "INTEGER", "key", csv=True), *own,
+            *(c for c in JOB_COLUMNS if c.role in ("metric", "validity")),
+            _c("config_hash", "TEXT", "bookkeeping"), _c("extra", "TEXT", "bookkeeping"))
+
+
 #: One row per checkpoint of a job's fit (``--checkpoints``): the anytime curves.
-CHECKPOINT_COLUMNS: tuple[Column, ...] = (
-    _c("checkpoint_hash", "TEXT PRIMARY KEY", "key"),
-    _c("shape", "TEXT", "key", csv=True),
-    _c("method", "TEXT", "key", csv=True),
-    _c("seed", "INTEGER", "key", csv=True),
+CHECKPOINT_COLUMNS = _per_job_columns("checkpoint_hash", (
     _c("fraction", "REAL", "key", csv=True),
     _c("step", "INTEGER", "key", csv=True),
     _c("fit_elapsed_s", "REAL", "timing", csv=True),
-    *(c for c in JOB_COLUMNS if c.role in ("metric", "validity")),
-    _c("config_hash", "TEXT", "bookkeeping"),
-    _c("extra", "TEXT", "bookkeeping"),
-)
+))
 
 #: One row per decomposition variant of a neural job (``--decompose``): the job's fitted field with
 #: the components ``exact`` (e.g. 'flags+s') taken from the exact field, extracted and scored.
-COMPONENT_COLUMNS: tuple[Column, ...] = (
-    _c("component_hash", "TEXT PRIMARY KEY", "key"),
-    _c("shape", "TEXT", "key", csv=True),
-    _c("method", "TEXT", "key", csv=True),
-    _c("seed", "INTEGER", "key", csv=True),
+COMPONENT_COLUMNS = _per_job_columns("component_hash", (
     _c("exact", "TEXT", "key", csv=True),
-    *(c for c in JOB_COLUMNS if c.role in ("metric", "validity")),
     _c("extract_s", "REAL", "timing"),
-    _c("config_hash", "TEXT", "bookkeeping"),
-    _c("extra", "TEXT", "bookkeeping"),
-)
+))
 
 TABLES = {"jobs": JOB_COLUMNS, "floor": FLOOR_COLUMNS, "checkpoints": CHECKPOINT_COLUMNS,
           "components": COMPONENT_COLUMNS}

@@ -32,6 +32,7 @@ class BOFMethod(Method):
     extractor = "marching cubes"
     display_order = 10
     color = "#29a37a"
+    components = ("sign", "magnitude")
     parameters = {
         "level": Param(0.5, "occupancy probability of the extracted level set", gt=0, lt=1),
         "near_eps": Param(0.01, "blocks with a corner probability in (eps, 1 - eps) are queried finely",
@@ -55,8 +56,6 @@ class BOFMethod(Method):
         logits, _, info = query.sparse_grid_points(model, N, near, device, stride=self.params["stride"])
         prob = expit(logits[..., 0].astype(np.float64))
         return prob.astype(np.float32), {"query_fraction": info.fraction}
-
-    components = ("sign", "magnitude")
 
     def hybrid_grid(self, fitted, exact, exact_parts, model, N, device=None):
         hybrid = signed_hybrid(exact if "sign" in exact_parts else fitted,

@@ -151,6 +151,7 @@ class SALSMethod(Method):
     extractor = "E-DC"
     display_order = 40
     color = "#e4572e"
+    components = ("flags", "s", "normals")
     parameters = {
         "o_threshold": Param(DEFAULT_O_THRESHOLD, "an edge is intersected when o_hat > this", gt=0, lt=1, neural_only=True),
         "normals": Param(True, "E-DC vertices from the QEF with autograd normals (else mass points)"),
@@ -238,8 +239,6 @@ class SALSMethod(Method):
                 _, g = query.evaluate_with_input_grad(model, query.edge_inputs(N, ids), 1, device)
                 normals = nearer_endpoint_normals(s, g)
         return {"edge_ids": ids, "s": s, "normals": normals}, {"query_fraction": info.fraction}
-
-    components = ("flags", "s", "normals")
 
     def fitted_edges(self, model, N: int, ids: np.ndarray, device=None) -> tuple[np.ndarray, np.ndarray | None]:
         """The network's s (E,) and, with ``normals``, its unit normals (E, 3) on the grid edges ``ids``."""

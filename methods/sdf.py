@@ -33,6 +33,7 @@ class SDFMethod(Method):
     extractor = "marching cubes"
     display_order = 20
     color = "#3a7fc1"
+    components = ("sign", "magnitude")
     parameters = {
         "level": Param(0.0, "iso level of marching cubes (canonical units)", gt=-CLAMP, lt=CLAMP),
         "stride": Param(query.DEFAULT_STRIDE, "coarse stride of the sparse query", ge=1, neural_only=True),
@@ -51,8 +52,6 @@ class SDFMethod(Method):
         near = query.near_level(self.params["level"], query.block_half_diagonal(N, self.params["stride"]))
         values, _, info = query.sparse_grid_points(model, N, near, device, stride=self.params["stride"])
         return values[..., 0], {"query_fraction": info.fraction}
-
-    components = ("sign", "magnitude")
 
     def hybrid_grid(self, fitted, exact, exact_parts, model, N, device=None):
         return signed_hybrid(exact if "sign" in exact_parts else fitted,

@@ -45,6 +45,7 @@ class UDFMethod(Method):
     loss_needs_input_grad = True
     display_order = 30
     color = "#f2a541"
+    components = ("values", "gradients")
     parameters = {
         "face_filter": Param(1.0 / 6.0, "faces whose largest vertex UDF is >= this x h are removed", gt=0),
         "mean_factor": Param(1.05, "candidate cubes: mean corner UDF < this x h", gt=0),
@@ -93,8 +94,6 @@ class UDFMethod(Method):
             return np.maximum(query.evaluate(model, np.asarray(points, dtype=np.float32), device)[:, 0], 0.0)
 
         return {"udf": d, "grad": grad, "udf_at": udf_at}, {"query_fraction": info.fraction}
-
-    components = ("values", "gradients")
 
     def hybrid_grid(self, fitted, exact, exact_parts, model, N, device=None):
         source = exact if "values" in exact_parts else fitted

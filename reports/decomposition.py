@@ -40,6 +40,12 @@ def _shape_means(frame: pd.DataFrame, columns: list[str], by: list[str]) -> pd.D
     return values.groupby([frame[k] for k in by] + [frame["shape"]]).mean()
 
 
+def decomposed_jobs(results: pd.DataFrame, components: pd.DataFrame) -> pd.DataFrame:
+    """The successful job rows that have decomposition rows."""
+    return ok_jobs(results).merge(components[["shape", "method", "seed"]].drop_duplicates(),
+                                  on=["shape", "method", "seed"])
+
+
 def decomposition_frame(results: pd.DataFrame, components: pd.DataFrame, metrics: list,
                         methods: list[str]) -> pd.DataFrame:
     """One row per (method, variant) in table order: mean and median over shapes of every headline
@@ -47,20 +53,18 @@ def decomposition_frame(results: pd.DataFrame, components: pd.DataFrame, metrics
     and every variant succeeded count, so all rows of a method average the same shapes."""
     columns = [m.column for m in metrics] + ["n_faces"]
     scale = pd.Series({m.column: m.scale for m in metrics} | {"n_faces": 1.0})
-    decomposed = ok_jobs(results)
-    decomposed = decomposed.merge(components[["shape", "method", "seed"]].drop_duplicates(), on=["shape", "method", "seed"])
-    rows = pd.concat([decomposed.assign(exact=""), components.assign(exact=components["exact"].fillna(""))],
-                     ignore_index=True)
+    components = components.assign(exact=components["exact"].fillna(""))
+    rows = pd.concat([decomposed_jobs(results, components).assign(exact=""), components], ignore_index=True)
     per_shape = _shape_means(rows, columns, ["method", "exact"]) * scale
     out = []
     for method in [m for m in methods if m in set(components["method"])]:
         mine = per_shape.xs(method, level="method")
-        variants = [""] + list(dict.fromkeys(components.loc[components["method"] == method, "exact"].fillna("")))
-        shapes = set.intersection(*(set(mine.xs(v, level="exact").index) for v in variants if v in mine.index))
+        found = set(mine.index.get_level_values("exact"))
+        variants = [v for v in ["", *dict.fromkeys(components.loc[components["method"] == method, "exact"])]
+                    if v in found]
+        shapes = sorted(set.intersection(*(set(mine.loc[v].index) for v in variants)))
         for v in variants:
-            part = mine.xs(v, level="exact").loc[sorted(shapes)] if v in mine.index.get_level_values("exact") else None
-            if part is None or part.empty:
-                continue
+            part = mine.loc[v].loc[shapes]
             out.append({"method": method, "variant": variant_label(v), "shapes": len(part),
                         **{f"mean.{c}": part[c].mean() for c in columns},
                         **{f"median.{c}": part[c].median() for c in columns if c != "n_faces"}})
@@ -92,8 +96,7 @@ def decomposition_table(frame: pd.DataFrame, metrics: list, caption: str) -> Tab
 def component_error_table(results: pd.DataFrame, components: pd.DataFrame, methods: list[str],
                           caption: str) -> Table | None:
     """The fitted components' errors per method (mean over its decomposed jobs); None without any."""
-    jobs = ok_jobs(results).merge(components[["shape", "method", "seed"]].drop_duplicates(),
-                                  on=["shape", "method", "seed"])
+    jobs = decomposed_jobs(results, components)
     columns = [c for c in ERROR_LABELS if c in jobs.columns and numeric(jobs, c).notna().any()]
     if not columns or jobs.empty:
         return None

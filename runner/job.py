@@ -284,7 +284,8 @@ def _decompose(spec: JobSpec, method, shape, fields, model, fitted, device, cach
                     extraction = method.extract(method.hybrid_grid(fitted, exact, parts, model, spec.grid, device),
                                                 spec.grid)
                 scores = metrics.evaluate(shape.vertices, shape.faces, extraction.vertices, extraction.faces,
-                                          preset=spec.metric_preset, seed=job_streams(shape.content_hash, spec.seed).metrics,
+                                          preset=spec.metric_preset,
+                                          seed=job_streams(shape.content_hash, spec.seed).metrics,  # fresh: evaluate spawns from it
                                           n_points=spec.eval_points)
             scores.pop("seconds", None)
             result.components.append({"exact": "+".join(parts), **scores, "extract_s": inner.seconds["extract_s"]})
