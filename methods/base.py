@@ -103,6 +103,11 @@ class Method:
     #: the fitted network (:meth:`hybrid_grid`; ``run_benchmark.py --decompose``), e.g. SALS's
     #: intersection flags, hit positions s and normals. Empty: the method is not decomposed.
     components: ClassVar[tuple[str, ...]] = ()
+    #: The registered method whose fitted network this one extracts, when the two share their field
+    #: (the same targets, loss and fit parameters; e.g. ``sdf-ndc`` extracts the ``sdf`` network
+    #: with another extractor): its fits are stored and keyed under that name, so one fit serves
+    #: both. Empty: the method's own fit.
+    fit_of: ClassVar[str] = ""
 
     def __init__(self, **params: Any):
         unknown = sorted(set(params) - set(self.parameters))
@@ -112,6 +117,11 @@ class Method:
         self.params = {k: p.default for k, p in self.parameters.items()}
         for key, value in params.items():
             self.params[key] = self.parameters[key].parse(value, f"{self.name}.{key}")
+
+    @property
+    def fit_name(self) -> str:
+        """The name its fitted weights are keyed and stored under (:attr:`fit_of` or its own)."""
+        return self.fit_of or self.name
 
     @property
     def input_dim(self) -> int:
@@ -183,6 +193,12 @@ class Method:
         """Errors of the fitted field's components against the exact ones (metric columns)."""
         return {}
 
+    @classmethod
+    def unavailable(cls) -> str | None:
+        """Why the method cannot run on this machine (one line, e.g. data it reads is absent), or
+        None. Such a method is left out of the default method list and refused when named."""
+        return None
+
     def describe(self) -> dict[str, Any]:
         return {"name": self.name, "extractor": self.extractor, "input": self.input_kind, "params": dict(self.params)}
 
@@ -252,8 +268,10 @@ def register_method(cls: type[Method]) -> type[Method]:
 
 
 def available_methods(task: str | None = "encode") -> list[str]:
-    """Registered method names of one task (None: every task) in display order."""
-    return [m for m in METHODS.names() if task is None or METHODS.get(m).task == task]
+    """Registered method names of one task (None: every task) that can run on this machine
+    (:meth:`Method.unavailable`), in display order."""
+    return [m for m in METHODS.names() if (task is None or METHODS.get(m).task == task)
+            and METHODS.get(m).unavailable() is None]
 
 
 def get_method(name: str, **params: Any) -> Method:

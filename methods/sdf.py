@@ -39,6 +39,11 @@ class SDFMethod(Method):
         "stride": Param(query.DEFAULT_STRIDE, "coarse stride of the sparse query", ge=1, neural_only=True),
     }
 
+    @property
+    def level(self) -> float:
+        """The extracted level of the signed distance (canonical units)."""
+        return self.params["level"]
+
     def training_targets(self, fields, samples) -> dict[str, np.ndarray]:
         return {"sdf": fields.sdf(samples.points).astype(np.float32)}
 
@@ -49,20 +54,20 @@ class SDFMethod(Method):
         return cache.get(fields, N, "sdf"), {}
 
     def neural_grid(self, model, N, device=None):
-        near = query.near_level(self.params["level"], query.block_half_diagonal(N, self.params["stride"]))
+        near = query.near_level(self.level, query.block_half_diagonal(N, self.params["stride"]))
         values, _, info = query.sparse_grid_points(model, N, near, device, stride=self.params["stride"])
         return values[..., 0], {"query_fraction": info.fraction}
 
     def hybrid_grid(self, fitted, exact, exact_parts, model, N, device=None):
         return signed_hybrid(exact if "sign" in exact_parts else fitted,
-                             exact if "magnitude" in exact_parts else fitted, self.params["level"])
+                             exact if "magnitude" in exact_parts else fitted, self.level)
 
     def component_errors(self, fitted, exact, N):
         h = spacing(N)
         band = np.abs(exact) < 2.0 * h
-        return {"wrong_side_points": wrong_side_points(fitted, exact, self.params["level"]),
+        return {"wrong_side_points": wrong_side_points(fitted, exact, self.level),
                 "sdf_error_h": float(np.abs(fitted[band] - exact[band]).mean() / h) if band.any() else np.nan}
 
     def extract(self, grid_field, N) -> Extraction:
-        V, F = marching_cubes_grid(np.asarray(grid_field), level=self.params["level"], inside="low")
+        V, F = marching_cubes_grid(np.asarray(grid_field), level=self.level, inside="low")
         return Extraction(V, F)

@@ -162,8 +162,11 @@ def task_code_digest(spec) -> str:
 
 
 def fit_code_digest(method) -> str:
-    """Code a fit depends on: the method's module, the fitting loop, the sampler, the exact fields."""
-    return code_digest(type(method).__module__, "methods.fitting", "benchmark.sampler", "benchmark.fields")
+    """Code a fit depends on: the module of the method the fit belongs to (``method.fit_name``), the
+    fitting loop, the sampler, the exact fields."""
+    from methods.base import METHODS
+
+    return code_digest(METHODS.get(method.fit_name).__module__, "methods.fitting", "benchmark.sampler", "benchmark.fields")
 
 
 def extraction_code_digest(method) -> str:
@@ -199,21 +202,21 @@ class RunCaches:
         """(model, final loss) from the cache, or None (absent or damaged: the caller fits)."""
         from methods import fitting
 
-        data = self._read(self._path("weights", method.name, key, ".pt"), "weights")
-        return None if data is None else fitting.model_from_bytes(data, device=device, method_name=method.name)
+        data = self._read(self._path("weights", method.fit_name, key, ".pt"), "weights")
+        return None if data is None else fitting.model_from_bytes(data, device=device, method_name=method.fit_name)
 
     def save_weights(self, method, key: str, fit, budget) -> None:
         from methods import fitting
 
-        path = self._path("weights", method.name, key, ".pt")
+        path = self._path("weights", method.fit_name, key, ".pt")
         if path is not None:
-            write_checked(path, fitting.model_to_bytes(fit.model, budget, method.name, fit.final_loss))
+            write_checked(path, fitting.model_to_bytes(fit.model, budget, method.fit_name, fit.final_loss))
 
     @contextlib.contextmanager
     def fit_lock(self, method, key: str) -> Iterator[None]:
         """Hold the exclusive lock of one weights entry (:func:`benchmark.storage.exclusive_lock`): a
         second job needing the same fit waits, then loads it."""
-        path = self._path("locks", f"weights_{method.name}", key, ".lock")
+        path = self._path("locks", f"weights_{method.fit_name}", key, ".lock")
         if path is None:
             yield
             return

@@ -198,7 +198,7 @@ def _job_body(spec: JobSpec, shape, device, timer: StageTimer, result: TaskResul
     if spec.mode == "neural":
         from methods.fitting import get_budget
 
-        weights_key = digest({"shape": result.shape_hash, "method": spec.method, "input": method.input_kind,
+        weights_key = digest({"shape": result.shape_hash, "method": method.fit_name, "input": method.input_kind,
                               "output_dim": method.output_dim, "budget": dataclasses.asdict(get_budget(spec.budget, spec.budget_params)),
                               "seed": spec.seed, "code": fit_code_digest(method), "fit_params": method.fit_params()})
     mesh_key = digest({"shape": result.shape_hash, "method": spec.method, "params": method.params, "mode": spec.mode,

@@ -94,6 +94,8 @@ def resolve(config: RunConfig) -> Plan:
             if METHODS.get(m).task != config.task:
                 raise ConfigError(f"method '{m}' belongs to the {METHODS.get(m).task} task, not to --task "
                                   f"{config.task} (its methods: {', '.join(available_methods(config.task))})")
+            if (reason := METHODS.get(m).unavailable()) is not None:
+                raise ConfigError(f"method '{m}' cannot run here: {reason}")
         for m in config.method_params:
             if m not in methods:
                 raise ConfigError(f"--method-param names method '{m}', which is not in --methods ({', '.join(methods)})")

@@ -41,7 +41,7 @@ import numpy as np
 import pandas as pd
 
 from benchmark.schema import columns, regression_columns
-from methods.base import available_methods
+from methods.base import METHODS, available_methods
 from methods.device import FLOAT_PATHS, float_path_environment
 from runner.executors import available_cores
 from runner.provenance import REPO
@@ -130,10 +130,23 @@ def verify_manifest(data_dir: Path, manifest: Path = BASELINES / "abc_subset.sha
     return problems
 
 
+def tier_methods(tier: Tier) -> list[str]:
+    """The methods a tier checks: those of its committed baseline (a method registered later joins
+    when the baseline is re-made with ``--update-baselines``), or every available one without one."""
+    path = BASELINES / tier.name / "results.csv"
+    if not path.is_file():
+        return available_methods()
+    known = set(pd.read_csv(path, usecols=["method"])["method"])
+    return [m for m in METHODS.names() if m in known]
+
+
 def run_tier(tier: Tier, data_dir: Path, out_dir: Path, workers: int, python: str = sys.executable,
-             extra_args: tuple[str, ...] = (), env: dict[str, str] | None = None) -> pd.DataFrame:
+             extra_args: tuple[str, ...] = (), env: dict[str, str] | None = None,
+             methods: list[str] | None = None) -> pd.DataFrame:
     """Run the tier's two benchmark runs (subset + non-manifold pairs) on ``workers`` processes of
     one torch thread each (the same numbers whatever the count); return their results.
+
+    ``methods`` default to :func:`tier_methods`.
 
     ``extra_args`` follow the tier's own (a later ``--seed`` replaces the tier's); ``env`` replaces
     the environment of the runs (e.g. with ``ATEN_CPU_CAPABILITY`` set)."""
@@ -141,7 +154,7 @@ def run_tier(tier: Tier, data_dir: Path, out_dir: Path, workers: int, python: st
     for dataset, list_file in (("abc", "abc_subset.txt"), ("abc-nonmanifold", "abc_subset_nonmanifold.txt")):
         run_dir = out_dir / f"{tier.name}-{dataset}"
         cmd = [
-            python, str(REPO / "run_benchmark.py"), "--methods", *available_methods(), "--dataset", dataset,
+            python, str(REPO / "run_benchmark.py"), "--methods", *(methods or tier_methods(tier)), "--dataset", dataset,
             "--data-dir", str(data_dir), "--list", str(BASELINES / list_file), "--out", str(run_dir),
             "--quiet", "--executor", "process", "--workers", str(workers), "--threads", "1",
             *tier.run_args, *extra_args,
@@ -332,7 +345,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     for tier in tiers:
         try:
-            results = baseline_columns(run_tier(tier, args.data_dir, work, args.workers))
+            results = baseline_columns(run_tier(tier, args.data_dir, work, args.workers,
+                                                methods=available_methods() if args.update_baselines else None))
         except RegressionError as exc:
             print(f"regression tier '{tier.name}': {exc}", file=sys.stderr)
             failed = True
