@@ -7,10 +7,14 @@ benchmark.grid. Compares, at N = 64 and 128:
 
 * scikit-image ``marching_cubes`` on the SDF grid (the reference),
 * oracle E-DC (:func:`methods.edc.edc_extract`, steps 2, 4, 5; the field is given),
-* MeshUDF-style extraction (:func:`methods.meshudf.meshudf_extract`) on the UDF grid.
+* MeshUDF-style extraction (:func:`methods.meshudf.meshudf_extract`) on the UDF grid,
+* DualMesh-UDF (:func:`methods.dualmesh.dualmesh_extract`) on the UDF grid, with the analytic UDF
+  and its gradient at its samples (the field queries are part of its time, as in a run),
+* NDC (:mod:`methods.ndc`: its CNN on the cells that change sign, then dual contouring) on the SDF
+  grid, where NDC's published weights are found.
 
 Run: ``.venv/bin/pytest benchmarks/bench_extractors.py --benchmark-enable``. The machines are shared
-and noisy, so the number to read is the ratio E-DC / marching cubes measured side by side:
+and noisy, so the numbers to read are the ratios to marching cubes measured side by side:
 ``.venv/bin/python benchmarks/bench_extractors.py`` prints it (interleaved medians).
 """
 
@@ -25,7 +29,9 @@ from skimage.measure import marching_cubes
 
 from benchmark.grid import edge_endpoint_values, edge_endpoints, grid_points, spacing
 from methods.edc import edc_extract
+from methods.dualmesh import dualmesh_extract
 from methods.meshudf import meshudf_extract
+from methods import ndc
 
 
 def _box_sdf(p, lo, hi):
@@ -99,6 +105,45 @@ def test_meshudf(benchmark, N):
     assert len(faces) > 0
 
 
+def heat_sink_udf_grad(points):
+    """The heat sink's UDF and its unit gradient at ``points`` (P, 3)."""
+    d = heat_sink_sdf(points)
+    return np.abs(d), np.sign(d)[:, None] * sdf_gradient(points)
+
+
+def dualmesh_on_heat_sink(udf: np.ndarray):
+    return dualmesh_extract(udf, heat_sink_udf_grad, lambda p: np.abs(heat_sink_sdf(p)))
+
+
+@pytest.mark.parametrize("N", RESOLUTIONS)
+def test_dualmesh(benchmark, N):
+    verts, faces, _ = benchmark(dualmesh_on_heat_sink, fields(N)[1])
+    assert len(faces) > 0
+
+
+def ndc_extract(sdf: np.ndarray, N: int):
+    """NDC on an SDF grid (canonical units), as the ``sdf-ndc`` method runs it."""
+    sdf_voxels = (sdf / spacing(N)).astype(np.float32)
+    cells = ndc.active_cells(sdf_voxels < 0)
+    return ndc.dual_contour_signs(sdf_voxels < 0, ndc.ndc_vertex_offsets(sdf_voxels, cells), cells)
+
+
+def _have_ndc_weights() -> bool:
+    try:
+        ndc.load_weights()
+    except ndc.WeightsError:
+        return False
+    return True
+
+
+@pytest.mark.parametrize("N", RESOLUTIONS)
+def test_ndc(benchmark, N):
+    if not _have_ndc_weights():
+        pytest.skip("NDC's weights are absent")
+    verts, faces = benchmark(ndc_extract, fields(N)[0], N)
+    assert len(faces) > 0
+
+
 def _median_time(fn, repeats):
     times = []
     for _ in range(repeats):
@@ -111,18 +156,26 @@ def _median_time(fn, repeats):
 def main(repeats: int = 15):
     for N in RESOLUTIONS:
         sdf, udf, grad, ids, s, normals = fields(N)
-        mc, edc, mu = [], [], []
+        mc, edc, mu, nd, dm = [], [], [], [], []
         stages = []
-        for _ in range(repeats):  # interleaved so that machine load hits all three alike
+        with_ndc = _have_ndc_weights()
+        for _ in range(repeats):  # interleaved so that machine load hits all alike
             mc.append(_median_time(lambda: marching_cubes(sdf, 0.0), 1))
             edc.append(_median_time(lambda: stages.append(edc_extract(N, ids, s, normals)[2]), 1))
             mu.append(_median_time(lambda: meshudf_extract(udf, grad), 1))
+            dm.append(_median_time(lambda: dualmesh_on_heat_sink(udf), 1))
+            if with_ndc:
+                nd.append(_median_time(lambda: ndc_extract(sdf, N), 1))
         mc, edc, mu = np.median(mc), np.median(edc), np.median(mu)
         st = {k: float(np.median([t[k] for t in stages])) for k in stages[0]}
         print(f"N={N}: intersected edges {len(ids)}, h={spacing(N):.4f}")
         print(f"  skimage MC {mc * 1e3:.1f} ms | E-DC {edc * 1e3:.1f} ms (ratio E-DC/MC {edc / mc:.2f}; "
               + ", ".join(f"{k} {v * 1e3:.1f} ms" for k, v in st.items())
-              + f") | MeshUDF {mu * 1e3:.1f} ms (ratio {mu / mc:.2f})")
+              + f") | MeshUDF {mu * 1e3:.1f} ms (ratio {mu / mc:.2f})"
+              + f" | DualMesh-UDF {np.median(dm) * 1e3:.1f} ms (ratio {np.median(dm) / mc:.2f}, DualMesh/E-DC "
+                f"{np.median(dm) / edc:.2f})"
+              + (f" | NDC {np.median(nd) * 1e3:.1f} ms (ratio {np.median(nd) / mc:.2f}, NDC/E-DC "
+                 f"{np.median(nd) / edc:.2f})" if nd else " | NDC: weights absent"))
 
 
 if __name__ == "__main__":
