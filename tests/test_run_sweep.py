@@ -171,6 +171,22 @@ def test_jobs_that_share_a_fit_are_scheduled_after_every_fitting_job(fakes, tmp_
                      ("job", "builtin_000", 0.01), ("job", "builtin_001", 0.01)]
 
 
+def test_a_method_that_extracts_another_methods_fit_runs_after_every_job_that_fits(tmp_path):
+    """``sdf-ndc`` extracts the ``sdf`` network (``fit_of``): its jobs follow every fitting job, so
+    two workers never fit the same network at once or wait on each other's fit."""
+    from runner.driver import _schedule
+    from runner.tasks import build_tasks
+
+    args = build_parser().parse_args(["--methods", "sdf", "sdf-ndc", "--limit", "2", "--out", str(tmp_path / "r")])
+    plan = resolve(configure(args, tmp_path / "r"))
+    floors, jobs = build_tasks(plan)
+    todo = sorted(floors + jobs, key=_schedule(plan, floors + jobs))
+    assert [(t.kind, t.shape[8:11], getattr(t, "method", None)) for t in todo] == [
+        ("floor", "000", None), ("job", "000", "sdf"), ("floor", "001", None), ("job", "001", "sdf"),
+        ("job", "000", "sdf-ndc"), ("job", "001", "sdf-ndc")]
+    assert len({j.fit_identity() for j in jobs}) == 2  # one fit per shape
+
+
 def test_a_k_sweep_runs_the_jobs_of_networks_trained_early_while_the_last_one_trains(tmp_path):
     """Reconstruct jobs of one learned network (method, budget, training set) share its training
     across shapes: the first job of each K trains, and the others follow in the order their
