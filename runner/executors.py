@@ -138,10 +138,28 @@ _WORKER_QUEUE = None
 
 
 def _process_init(threads: int, progress_queue) -> None:
-    """Pool initializer: pin thread counts before any heavy import, keep the progress queue."""
+    """Pool initializer: pin thread counts before any heavy import, keep the progress queue, and
+    end the worker when the run's process is gone."""
     global _WORKER_QUEUE
     _WORKER_QUEUE = progress_queue
     pin_threads(threads)
+    exit_with_parent()
+
+
+def exit_with_parent(poll_s: float = 1.0) -> None:
+    """End this process (exit status 1) within ``poll_s`` seconds of its parent's death, so a run
+    that is killed leaves no worker fitting on for nobody."""
+    import threading
+    import time
+
+    parent = os.getppid()
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(poll_s)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
 
 
 def pin_threads(threads: int) -> None:

@@ -276,3 +276,41 @@ def test_ray_resources_ask_gpus_only_for_fitting_jobs(ray_instance):
     assert ex.resources_for(_Spec(0, uses_fitting=False)) == {"num_cpus": 1.0, "num_gpus": 0.0}
     ex.cluster_gpus = 0.0
     assert ex.resources_for(_Spec(0, uses_fitting=True))["num_gpus"] == 0.0
+
+
+def test_a_worker_ends_when_the_run_process_is_killed(tmp_path):
+    """A process that called exit_with_parent ends within a poll once its parent is killed -9
+    (a killed run leaves no worker fitting on)."""
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    if not Path("/proc/self/status").exists():
+        pytest.skip("needs /proc to tell a running process from a zombie")
+    repo = Path(__file__).resolve().parents[1]
+    worker = "from runner.executors import exit_with_parent; exit_with_parent(0.05); import time; time.sleep(60)"
+    parent = ("import subprocess, sys, time; "
+              f"p = subprocess.Popen([sys.executable, '-c', {worker!r}]); print(p.pid, flush=True); time.sleep(60)")
+    proc = subprocess.Popen([sys.executable, "-c", parent], cwd=repo, stdout=subprocess.PIPE, text=True)
+    child = int(proc.stdout.readline())
+    time.sleep(1.0)  # the child is up and watching
+    assert _running(child)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    deadline = time.monotonic() + 10
+    while _running(child) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not _running(child)
+
+
+def _running(pid: int) -> bool:
+    """The process exists and is not a zombie (an exited child nobody has reaped yet)."""
+    from pathlib import Path
+
+    status = Path(f"/proc/{pid}/status")
+    try:
+        return "\nState:\tZ" not in status.read_text()
+    except (FileNotFoundError, ProcessLookupError):
+        return False
