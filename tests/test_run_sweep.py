@@ -132,7 +132,7 @@ def test_every_shipped_recipe_resolves_against_the_registry(name, tmp_path):
     # the oracle ceiling doubles the points, unless the recipe turns it off (the reconstruct task has none)
     ceiling = 2 if plan.config.task == "encode" and plan.config.ceiling else 1
     assert plan.sweep and len(plan.variants) == ceiling * len(variants(plan.sweep))
-    assert {"normals", "o-threshold", "samples", "grid", "faces", "knn", "backbone"} <= set(recipe_names())
+    assert {"normals", "o-threshold", "samples", "grid", "faces", "knn", "backbone", "extractors"} <= set(recipe_names())
 
 
 @pytest.mark.slow
