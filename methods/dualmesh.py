@@ -260,12 +260,10 @@ def quads(cells: np.ndarray, has_vertex: np.ndarray, N: int) -> np.ndarray:
 
 
 def _smallest_singular_vector(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Singular values (K, 3), descending, and the unit normal (K, 3: the right singular vector of
-    the smallest) of centred point sets (K, n, 3), through the eigen-decomposition of the 3 x 3
-    scatter matrix."""
+    """Singular values (K, 3) and the unit normal (K, 3) of centred point sets (K, n, 3)."""
     centred = points - points.mean(axis=1, keepdims=True)
-    lam, vec = np.linalg.eigh(np.einsum("kni,knj->kij", centred, centred))
-    return np.sqrt(np.clip(lam[:, ::-1], 0.0, None)), vec[:, :, 0]
+    _, s, vt = np.linalg.svd(centred, full_matrices=False)
+    return s, vt[:, -1, :]
 
 
 def triangulate(vertices, kinds, directions, quad_ids) -> np.ndarray:
