@@ -27,10 +27,11 @@ constants of the authors' ``extract_mesh.py`` / ``octree.cpp`` / ``qef_eigen.cpp
    through its plane-type vertices when their triangles pass the same test, else along 0-2 (two
    edge-type vertices there) or 1-3; other quads are dropped.
 
-The output is unoriented (a UDF has no inside) and may have holes where a quad was dropped. After
-the authors' merge of vertices closer than 1e-7, triangles with a repeated corner and repeated
-triangles (two layers of leaves that place the same vertices) are dropped; the surface they cover is
-the same.
+The output is unoriented (a UDF has no inside) and may have holes where a quad was dropped.
+Triangles of no area (collinear corners: whether their quad passes step 5 is decided by rounding, as
+its normal is any direction across the line) are dropped, and after the authors' merge of vertices
+closer than 1e-7 so are triangles with a repeated corner and repeated triangles (two layers of leaves
+that place the same vertices); the surface they cover is the same.
 """
 
 from __future__ import annotations
@@ -54,6 +55,8 @@ CENTRE_GROWTH = 0.01
 FALLBACK_GROWTHS = (1e-4, 0.02, 0.07, 0.12, 0.17, 0.22, 0.27)
 #: Quad validation: coplanarity ratio, and |cos| bounds for plane- and edge-type vertices.
 COPLANAR_RATIO, PLANE_ALIGNMENT, EDGE_ALIGNMENT = 0.25, 0.85, 0.5
+#: Triangles below this area (x h^2) have collinear corners and are dropped.
+ZERO_AREA = 1e-9
 #: Vertex types.
 CORNER, EDGE, PLANE = 0, 1, 2
 #: The 27 lattice offsets of a leaf (in half-cells).
@@ -313,7 +316,7 @@ def dualmesh_extract(udf_grid: np.ndarray, udf_grad_at, udf_at):
     Returns
     -------
     vertices (V, 3) float64 canonical frame, faces (F, 3) int64 (unoriented), and facts: leaves,
-    dual vertices per type, quads, dropped quads.
+    dual vertices per type, quads, repeated triangles.
     """
     import igl
 
@@ -321,14 +324,21 @@ def dualmesh_extract(udf_grid: np.ndarray, udf_grad_at, udf_at):
     cells = leaf_cells(np.asarray(udf_grid), udf_at)
     empty = (np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
     if len(cells) == 0:
-        return (*empty, {"leaves": 0, "dual_vertices": 0, "quads": 0, "dropped_quads": 0})
+        return (*empty, {"leaves": 0, "dual_vertices": 0, "quads": 0})
     has_vertex, vertices, kinds, directions = dual_vertices(cells, N, udf_grad_at, udf_at)
     quad_ids = quads(cells, has_vertex, N)
     faces = triangulate(vertices, kinds, directions, quad_ids)
+    # a quad whose corners are collinear gives triangles of no area, and whether they pass the quad
+    # test depends on rounding (its normal is any direction across the line): they cover nothing
+    h = spacing(N)
+    corners = vertices[faces]
+    area2 = np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+    flat = area2 <= 2.0 * ZERO_AREA * h * h
+    faces = faces[~flat]
     facts = {"leaves": int(len(cells)), "dual_vertices": int(has_vertex.sum()),
              "corner_vertices": int((has_vertex & (kinds == CORNER)).sum()),
              "edge_vertices": int((has_vertex & (kinds == EDGE)).sum()),
-             "quads": int(len(quad_ids)), "dropped_quads": int(len(quad_ids) - len(faces) // 2)}
+             "quads": int(len(quad_ids))}
     if len(faces) == 0:
         return (*empty, facts)
     V, _, _, F = igl.remove_duplicate_vertices(vertices, faces.astype(np.int64), 1e-7)

@@ -316,6 +316,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--work-dir", type=Path, default=None, help="where the runs go (default: a temporary folder)")
     parser.add_argument("--workers", type=int, default=available_cores(),
                         help="parallel jobs, one torch thread each (default: the cores, here %(default)s)")
+    parser.add_argument("--methods", nargs="+", default=None,
+                        help="with --update-baselines: the methods the tier's baseline keeps (default: every "
+                             "available method); otherwise those of the committed baseline")
     parser.add_argument("--measure-spread", type=int, nargs="+", metavar="SEED", default=None,
                         help="instead of comparing: run the tier at these seeds on every CPU float path "
                              f"({', '.join(FLOAT_PATHS)}) and write reports/baselines/<tier>/spread.csv")
@@ -346,7 +349,7 @@ def main(argv: list[str] | None = None) -> int:
     for tier in tiers:
         try:
             results = baseline_columns(run_tier(tier, args.data_dir, work, args.workers,
-                                                methods=available_methods() if args.update_baselines else None))
+                                                methods=(args.methods or available_methods()) if args.update_baselines else None))
         except RegressionError as exc:
             print(f"regression tier '{tier.name}': {exc}", file=sys.stderr)
             failed = True
