@@ -32,7 +32,7 @@ from benchmark.grid import edge_endpoint_values, edge_endpoints, grid_points, sp
 from methods.edc import edc_extract
 from methods.dualmesh import dualmesh_extract
 from methods.meshudf import meshudf_extract
-from methods import ndc
+from methods.base import METHODS, get_method
 
 
 def _box_sdf(p, lo, hi):
@@ -133,27 +133,16 @@ def test_dualmesh(benchmark, N):
     assert len(faces) > 0
 
 
-def ndc_extract(sdf: np.ndarray, N: int):
-    """NDC on an SDF grid (canonical units), as the ``sdf-ndc`` method runs it."""
-    sdf_voxels = (sdf / spacing(N)).astype(np.float32)
-    cells = ndc.active_cells(sdf_voxels < 0)
-    return ndc.dual_contour_signs(sdf_voxels < 0, ndc.ndc_vertex_offsets(sdf_voxels, cells), cells)
-
-
-def _have_ndc_weights() -> bool:
-    try:
-        ndc.load_weights()
-    except ndc.WeightsError:
-        return False
-    return True
+#: The ``sdf-ndc`` method, which runs NDC on an SDF grid (canonical units); None without NDC's weights.
+NDC = None if METHODS.get("sdf-ndc").unavailable() else get_method("sdf-ndc")
 
 
 @pytest.mark.parametrize("N", RESOLUTIONS)
 def test_ndc(benchmark, N):
-    if not _have_ndc_weights():
-        pytest.skip("NDC's weights are absent")
-    verts, faces = benchmark(ndc_extract, fields(N)[0], N)
-    assert len(faces) > 0
+    if NDC is None:
+        pytest.skip(METHODS.get("sdf-ndc").unavailable())
+    extraction = benchmark(NDC.extract, fields(N)[0], N)
+    assert len(extraction.faces) > 0
 
 
 def _median_time(fn, repeats):
@@ -170,7 +159,6 @@ def main(repeats: int = 15):
         sdf, udf, grad, ids, s, normals = fields(N)
         mc, edc, mu, nd, dm, dm_queries = [], [], [], [], [], []
         stages = []
-        with_ndc = _have_ndc_weights()
         for _ in range(repeats):  # interleaved so that machine load hits all alike
             mc.append(_median_time(lambda: marching_cubes(sdf, 0.0), 1))
             edc.append(_median_time(lambda: stages.append(edc_extract(N, ids, s, normals)[2]), 1))
@@ -178,8 +166,8 @@ def main(repeats: int = 15):
             queries = []
             dm.append(_median_time(lambda: dualmesh_on_heat_sink(udf, queries), 1) - sum(queries))
             dm_queries.append(sum(queries))
-            if with_ndc:
-                nd.append(_median_time(lambda: ndc_extract(sdf, N), 1))
+            if NDC is not None:
+                nd.append(_median_time(lambda: NDC.extract(sdf, N), 1))
         mc, edc, mu = np.median(mc), np.median(edc), np.median(mu)
         st = {k: float(np.median([t[k] for t in stages])) for k in stages[0]}
         print(f"N={N}: intersected edges {len(ids)}, h={spacing(N):.4f}")

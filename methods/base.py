@@ -108,6 +108,13 @@ class Method:
     #: with another extractor): its fits are stored and keyed under that name, so one fit serves
     #: both. Empty: the method's own fit.
     fit_of: ClassVar[str] = ""
+    #: The name its fitted weights are keyed and stored under: :attr:`fit_of`, else its own (set
+    #: for every subclass).
+    fit_name: ClassVar[str] = ""
+
+    def __init_subclass__(cls, **kwargs: Any):
+        super().__init_subclass__(**kwargs)
+        cls.fit_name = cls.fit_of or cls.name
 
     def __init__(self, **params: Any):
         unknown = sorted(set(params) - set(self.parameters))
@@ -117,11 +124,6 @@ class Method:
         self.params = {k: p.default for k, p in self.parameters.items()}
         for key, value in params.items():
             self.params[key] = self.parameters[key].parse(value, f"{self.name}.{key}")
-
-    @property
-    def fit_name(self) -> str:
-        """The name its fitted weights are keyed and stored under (:attr:`fit_of` or its own)."""
-        return self.fit_of or self.name
 
     @property
     def input_dim(self) -> int:

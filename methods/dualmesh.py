@@ -253,10 +253,9 @@ def quads(cells: np.ndarray, has_vertex: np.ndarray, N: int) -> np.ndarray:
     for axis in range(3):
         lo = [1, 1, 1]
         lo[axis] = 0
-        # every edge with a vertex cell at its (0, 0, 0)-offset corner of the quad is a candidate
+        # each quad has a vertex cell as its first cell: the edges those cells start, in C order
         starts = cells[has_vertex] - _QUAD_CELLS[axis][0]
         starts = starts[np.all((starts >= lo) & (starts <= N - 2), axis=1)]
-        starts = np.unique(starts, axis=0)
         around = vertex_of[tuple(np.moveaxis(starts[:, None, :] + _QUAD_CELLS[axis][None], -1, 0))]
         out.append(around[np.all(around >= 0, axis=1)])
     return np.concatenate(out) if out else np.zeros((0, 4), dtype=np.int64)

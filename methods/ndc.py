@@ -50,9 +50,8 @@ INPUT_CLIP = 2.0
 #: Value of the padding before the clip (its sign is the corner point's).
 PADDING_VALUE = 10.0
 LEAKY_SLOPE = 0.01
-#: The residual blocks after each 3x3x3 convolution: res_1 after conv_0, res_2 after conv_1,
-#: res_3..res_8 after conv_2.
-_RESIDUAL_AFTER = {"conv_0": ("res_1",), "conv_1": ("res_2",), "conv_2": tuple(f"res_{i}" for i in range(3, 9))}
+#: The residual blocks after the last 3x3x3 convolution (res_1 follows conv_0, res_2 conv_1).
+_TAIL_RESIDUALS = tuple(f"res_{i}" for i in range(3, 9))
 #: The 27 offsets of a 3x3x3 kernel in the C order of its weight's (kd, kh, kw) axes.
 _KERNEL_OFFSETS = np.array(list(itertools.product(range(3), repeat=3)), dtype=np.int64)
 #: Rows gathered per matrix product of a sparse 3x3x3 convolution (bounds the (rows, 27 x 64) buffer).
@@ -173,7 +172,7 @@ def ndc_vertex_offsets(sdf_voxels: np.ndarray, cells: np.ndarray, state: dict | 
         x = _sparse_conv3(state, "conv_1", x, index_conv0, at_conv1)
         x = _residual(state, "res_2", x)
         x = _sparse_conv3(state, "conv_2", x, index_conv1, cells)
-        for name in _RESIDUAL_AFTER["conv_2"]:
+        for name in _TAIL_RESIDUALS:
             x = _residual(state, name, x)
         x = _leaky(_pointwise(state, "conv_3", x))
         x = _leaky(_pointwise(state, "conv_4", x))

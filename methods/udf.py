@@ -35,6 +35,21 @@ CLAMP = 0.1
 GRAD_WEIGHT = 0.1
 
 
+def network_udf(model, device=None):
+    """The fitted UDF as a function of points (P, 3) -> max(f, 0) (P,)."""
+    def udf_at(points):
+        return np.maximum(query.evaluate(model, np.asarray(points, dtype=np.float32), device)[:, 0], 0.0)
+
+    return udf_at
+
+
+def network_udf_and_gradient(model, points: np.ndarray, device=None) -> tuple[np.ndarray, np.ndarray]:
+    """max(f, 0) (P,) and the unit autograd gradient of f (P, 3; 0 where it vanishes) at ``points``."""
+    out, g = query.evaluate_with_input_grad(model, np.asarray(points, dtype=np.float32), 0, device)
+    norm = np.linalg.norm(g, axis=1, keepdims=True)
+    return np.maximum(out[:, 0], 0.0), np.divide(g, norm, out=np.zeros_like(g), where=norm > 0)
+
+
 @register_method
 class UDFMethod(Method):
     name = "udf"
@@ -86,14 +101,8 @@ class UDFMethod(Method):
             grad = np.zeros(d.shape + (3,), dtype=np.float32)
             ijk = np.argwhere(d < 2.0 * spacing(N))
             if len(ijk):
-                _, g = query.evaluate_with_input_grad(model, query.point_inputs(N, ijk), 0, device)
-                norm = np.linalg.norm(g, axis=1, keepdims=True)
-                grad[tuple(ijk.T)] = np.divide(g, norm, out=np.zeros_like(g), where=norm > 0)
-
-        def udf_at(points):
-            return np.maximum(query.evaluate(model, np.asarray(points, dtype=np.float32), device)[:, 0], 0.0)
-
-        return {"udf": d, "grad": grad, "udf_at": udf_at}, {"query_fraction": info.fraction}
+                grad[tuple(ijk.T)] = network_udf_and_gradient(model, query.point_inputs(N, ijk), device)[1]
+        return {"udf": d, "grad": grad, "udf_at": network_udf(model, device)}, {"query_fraction": info.fraction}
 
     def hybrid_grid(self, fitted, exact, exact_parts, model, N, device=None):
         source = exact if "values" in exact_parts else fitted
@@ -103,9 +112,7 @@ class UDFMethod(Method):
             grad = fitted["grad"].copy()
             ijk = np.argwhere((source["udf"] < 2.0 * spacing(N)) & (fitted["udf"] >= 2.0 * spacing(N)))
             if len(ijk):
-                _, g = query.evaluate_with_input_grad(model, query.point_inputs(N, ijk), 0, device)
-                norm = np.linalg.norm(g, axis=1, keepdims=True)
-                grad[tuple(ijk.T)] = np.divide(g, norm, out=np.zeros_like(g), where=norm > 0)
+                grad[tuple(ijk.T)] = network_udf_and_gradient(model, query.point_inputs(N, ijk), device)[1]
         return {"udf": source["udf"], "grad": grad, "udf_at": source["udf_at"]}
 
     def component_errors(self, fitted, exact, N):

@@ -17,19 +17,7 @@ from benchmark.timing import stage
 from methods import query
 from methods.base import Extraction, register_method
 from methods.dualmesh import dualmesh_extract
-from methods.udf import UDFMethod
-
-
-def _network_udf_grad(model, device):
-    def udf_grad_at(points):
-        out, g = query.evaluate_with_input_grad(model, np.asarray(points, dtype=np.float32), 0, device)
-        norm = np.linalg.norm(g, axis=1, keepdims=True)
-        return np.maximum(out[:, 0], 0.0), np.divide(g, norm, out=np.zeros_like(g), where=norm > 0)
-
-    def udf_at(points):
-        return np.maximum(query.evaluate(model, np.asarray(points, dtype=np.float32), device)[:, 0], 0.0)
-
-    return udf_grad_at, udf_at
+from methods.udf import UDFMethod, network_udf, network_udf_and_gradient
 
 
 @register_method
@@ -53,8 +41,9 @@ class UDFDualMeshMethod(UDFMethod):
         stride = self.params["stride"]
         values, _, info = query.sparse_grid_points(model, N, query.near_below(query.block_half_diagonal(N, stride)),
                                                    device, stride=stride)
-        udf_grad_at, udf_at = _network_udf_grad(model, device)
-        return ({"udf": np.maximum(values[..., 0], 0.0), "udf_grad_at": udf_grad_at, "udf_at": udf_at},
+        return ({"udf": np.maximum(values[..., 0], 0.0),
+                 "udf_grad_at": lambda points: network_udf_and_gradient(model, points, device),
+                 "udf_at": network_udf(model, device)},
                 {"query_fraction": info.fraction})
 
     def extract(self, grid_field, N) -> Extraction:

@@ -323,6 +323,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="instead of comparing: run the tier at these seeds on every CPU float path "
                              f"({', '.join(FLOAT_PATHS)}) and write reports/baselines/<tier>/spread.csv")
     args = parser.parse_args(argv)
+    if args.methods and not args.update_baselines:
+        parser.error("--methods chooses a baseline's methods: it needs --update-baselines (a comparison "
+                     "runs the methods of the committed baseline)")
 
     if not args.data_dir.is_dir():
         print(f"regression skipped: {args.data_dir} is absent (the ABC subset lives in ../shared/data/abc)")

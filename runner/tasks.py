@@ -123,8 +123,9 @@ class JobSpec(TaskSpec):
     def fit_identity(self) -> str | None:
         """What the job's network depends on (its cache key without the code): jobs that share it fit
         or train it once. Encode: the shape's fit (jobs of a sweep that differ only in extraction
-        settings share it, and methods that extract another's field, ``Method.fit_of``); reconstruct: the network a learned method trains across shapes (method,
-        budget, its overrides, training set: every shape's job shares it). None for an oracle job
+        settings share it, and methods that extract another's field: ``Method.fit_name``); reconstruct:
+        the network a learned method trains across shapes (method, budget, its overrides, training
+        set: every shape's job shares it). None for an oracle job
         and a method without a network."""
         if not self.uses_fitting:
             return None
@@ -133,9 +134,8 @@ class JobSpec(TaskSpec):
                            "budget_params": self.budget_params, "train_dirs": list(self.train_dirs)})
         from methods.base import METHODS
 
-        fitted_as = METHODS.get(self.method).fit_of or self.method  # a method sharing another's fit
         return digest({"dataset": self.dataset, "dataset_options": identity_options(self.dataset_options),
-                       "shape": self.shape, "method": fitted_as, "budget": self.budget,
+                       "shape": self.shape, "method": METHODS.get(self.method).fit_name, "budget": self.budget,
                        "budget_params": self.budget_params, "seed": self.seed})
 
     @property
