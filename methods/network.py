@@ -33,6 +33,8 @@ from typing import Callable, NamedTuple, Sequence
 import torch
 from torch import nn
 
+from methods import grid_lookup
+
 #: Clamp of the exponent argument |beta x| (see module docstring).
 CLAMP = 30.0
 #: torch's default linear-regime threshold of beta x (softplus(x) = x above it; error < 2e-9 / beta).
@@ -211,6 +213,8 @@ class FeatureGrid(nn.Module):
     Level l is a learnable (R_l, R_l, R_l, C) volume of ``resolutions[l]`` points per axis (the
     cube's faces included), initialised uniform in +-:data:`GRID_INIT_SCALE`. A point's encoding is
     the :func:`trilinear` feature of every level, concatenated coarse to fine: (P, 3) -> (P, L C).
+    On the CPU in float32, for points without a gradient, :func:`methods.grid_lookup.lookup` computes
+    it (the same numbers, one compiled pass per level).
 
     Parameters
     ----------
@@ -236,7 +240,10 @@ class FeatureGrid(nn.Module):
         return len(self.resolutions) * self.channels
 
     def forward(self, points: torch.Tensor) -> torch.Tensor:
-        return torch.cat([trilinear(level, points) for level in self.levels], dim=1)
+        levels = list(self.levels)
+        if grid_lookup.applies(levels, points):
+            return grid_lookup.lookup(levels, points)
+        return torch.cat([trilinear(level, points) for level in levels], dim=1)
 
 
 #: Unit of the segment offset v - u fed to the head (canonical units): the length of the near-surface
