@@ -11,7 +11,8 @@ or as pytest-benchmark (one whole step per method):
     .venv/bin/pytest benchmarks/bench_fit_profile.py -o python_files='bench_*.py' --benchmark-enable -q
 
 Parts of one step of :func:`methods.fitting.fit` (each method's real loss and network, synthetic
-targets of the right kind near the sphere |x| = 0.6, 1M training rows as in the budget):
+targets of the right kind near the sphere |x| = 0.6, 1M training rows as in the budget), with
+denormal floats flushed to zero as in every fit (``methods.device.flush_denormals``):
 
 * ``batch``: the step's row draw and :func:`methods.fitting.gather_rows` of inputs and targets.
 * ``grid fwd`` / ``grid bwd``: the feature grid's lookup of the batch's points (2 per segment) with
@@ -41,6 +42,7 @@ import torch.nn.functional as F
 
 from benchmarks.bench_network import _interleaved, _sphere_data
 from methods.base import get_method
+from methods.device import flush_denormals
 from methods.fitting import BUDGETS, gather_rows, make_optimizer
 from methods.network import SEGMENT_SCALE, make_network
 
@@ -99,9 +101,8 @@ class Profile:
         self.model.head(self.codes).backward(self.head_grad)
 
     def forward_backward(self):
-        x = self.xb.clone().requires_grad_(self.method.loss_needs_input_grad)
         self.model.zero_grad(set_to_none=True)
-        self.method.loss(self.model(x), self.tb, inputs=x, model=self.model).backward()
+        self.method.loss(self.method.predict(self.model, self.xb), self.tb).backward()
 
     def optimizer_step(self):
         self.optimizer.step()
@@ -109,10 +110,8 @@ class Profile:
     def step(self):
         """One whole step as :func:`methods.fitting.fit` runs it."""
         x, t = self.batch()
-        if self.method.loss_needs_input_grad:
-            x.requires_grad_(True)
         self.optimizer.zero_grad(set_to_none=True)
-        self.method.loss(self.model(x), t, inputs=x, model=self.model).backward()
+        self.method.loss(self.method.predict(self.model, x), t).backward()
         self.optimizer.step()
 
     # the references ------------------------------------------------------------------------------
@@ -206,8 +205,9 @@ def markdown(results: dict, peak: float) -> str:
 @pytest.mark.parametrize("method_name", METHODS)
 def test_fit_step(benchmark, method_name):
     p = Profile(method_name)
-    p.step()
-    benchmark(p.step)
+    with flush_denormals():
+        p.step()
+        benchmark(p.step)
 
 
 def network_module_at(revision: str):
@@ -243,10 +243,8 @@ def step_against(method_name: str, network_module, rounds: int = 60) -> dict:
     def old_step():
         rows = torch.randint(0, len(then.inputs), (then.B,), generator=then.generator)
         x, t = then.inputs[rows], {k: v[rows] for k, v in then.targets.items()}
-        if then.method.loss_needs_input_grad:
-            x.requires_grad_(True)
         then.optimizer.zero_grad(set_to_none=True)
-        then.method.loss(then.model(x), t, inputs=x, model=then.model).backward()
+        then.method.loss(then.method.predict(then.model, x), t).backward()
         then.optimizer.step()
 
     ms = _median_ms({"now": now.step, "then": old_step}, rounds)
@@ -258,12 +256,13 @@ def _steps_per_second(method_name: str, threads: int, steps: int, start) -> floa
     multiprocessing Event: the processes of one measurement start together)."""
     torch.set_num_threads(threads)
     p = Profile(method_name)
-    p.step()
-    start.wait()
-    t = time.perf_counter()
-    for _ in range(steps):
+    with flush_denormals():
         p.step()
-    return steps / (time.perf_counter() - t)
+        start.wait()
+        t = time.perf_counter()
+        for _ in range(steps):
+            p.step()
+        return steps / (time.perf_counter() - t)
 
 
 def throughput(method_name: str, steps: int = 300, cores: int = 2) -> dict:
@@ -297,6 +296,11 @@ def main(argv=None):
                         help="steps per second of CORES one-thread processes side by side against one process of "
                              "CORES threads")
     args = parser.parse_args(argv)
+    with flush_denormals():  # as every fit runs its steps (methods.training_loop.run_steps)
+        _report(args)
+
+
+def _report(args):
     if args.throughput:
         print(f"| method | {args.throughput} processes x 1 thread, steps/s | 1 process x {args.throughput} threads, "
               f"steps/s | ratio |\n|---|---|---|---|")

@@ -80,13 +80,11 @@ def _train_step(method, model, budget_name: str, batch: int, data: SimpleNamespa
     """One step of ``method.loss`` on ``model`` with the budget's optimizer (its groups, its kernel)."""
     optimizer = make_optimizer(model, BUDGETS[budget_name])
     inputs = data.points if method.input_dim == 3 else data.segments
-    needs_grad = bool(getattr(method, "loss_needs_input_grad", False))
 
     def step():
         idx = torch.randint(0, len(inputs), (batch,), generator=generator)
-        xb = inputs[idx].requires_grad_(needs_grad)
         optimizer.zero_grad(set_to_none=True)
-        loss = method.loss(model(xb), {k: v[idx] for k, v in data.targets.items()}, inputs=xb, model=model)
+        loss = method.loss(method.predict(model, inputs[idx]), {k: v[idx] for k, v in data.targets.items()})
         loss.backward()
         optimizer.step()
 

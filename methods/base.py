@@ -78,8 +78,6 @@ class Method:
     extractor : name of the extraction algorithm, for tables (e.g. ``'marching cubes'``, ``'E-DC'``).
     parameters : the extractor parameters, ``{name: Param(default, help, bounds...)}``; users override
         any of them (``--method-param NAME.PARAM=VALUE``), parsed and checked by :class:`Param`.
-    loss_needs_input_grad : the loss differentiates the network w.r.t. its inputs (the fitting loop
-        then sets ``requires_grad`` on each batch's inputs before the forward pass).
     display_order : position in tables, plots and the default ``--methods`` list (low first).
     color : hex colour of the method in the report's plots.
     """
@@ -90,7 +88,6 @@ class Method:
     output_dim: ClassVar[int] = 1
     extractor: ClassVar[str] = ""
     parameters: ClassVar[dict[str, Param]] = {}
-    loss_needs_input_grad: ClassVar[bool] = False
     display_order: ClassVar[int] = 100
     color: ClassVar[str] = "#7f7f7f"
     #: The benchmark task the method serves: ``'encode'`` (a field fitted per shape from the mesh's
@@ -144,8 +141,13 @@ class Method:
         """Labels for every sample from the exact fields (``benchmark.fields.ExactFields``)."""
         raise NotImplementedError
 
-    def loss(self, prediction, targets: dict, inputs=None, model=None):
-        """Scalar torch loss of a batch: ``prediction`` (B, output_dim), ``targets`` torch tensors."""
+    def predict(self, model, inputs):
+        """What :meth:`loss` compares with a batch's targets: the network's outputs (B, output_dim)
+        (default); a method whose loss needs more of the network (e.g. its input gradient) returns it."""
+        return model(inputs)
+
+    def loss(self, prediction, targets: dict):
+        """Scalar torch loss of a batch: ``prediction`` from :meth:`predict`, ``targets`` torch tensors."""
         raise NotImplementedError
 
     # -- extraction ---------------------------------------------------------------------------
@@ -241,7 +243,7 @@ class LearnedPointCloudMethod(PointCloudMethod):
     def training_targets(self, fields, samples) -> dict[str, np.ndarray]:
         raise NotImplementedError
 
-    def loss(self, prediction, targets: dict, inputs=None, model=None):
+    def loss(self, prediction, targets: dict):
         raise NotImplementedError
 
     def reconstruct(self, points: np.ndarray, N: int, device=None, model=None) -> Extraction:

@@ -43,7 +43,7 @@ class BOFMethod(Method):
     def training_targets(self, fields, samples) -> dict[str, np.ndarray]:
         return {"occupancy": fields.occupancy(samples.points).astype(np.float32)}
 
-    def loss(self, prediction, targets, inputs=None, model=None):
+    def loss(self, prediction, targets):
         return F.binary_cross_entropy_with_logits(prediction[:, 0], targets["occupancy"])
 
     def oracle_grid(self, fields, N, cache):

@@ -11,7 +11,7 @@ each group's learning rate from its start to its end value over ``iterations`` s
 ``(t + 1) / W`` (a linear warm-up; from step W on the schedule is the cosine above) (torch's fused AdamW
 kernel where the budget asks for it, :func:`make_optimizer`); each step draws ``batch_size``
 samples *with replacement* from the M samples with a ``torch.Generator`` seeded by ``seed``; the
-loss is ``method.loss(prediction, batch_targets, inputs, model)``; the steps themselves (schedule,
+loss is ``method.loss(method.predict(model, batch_inputs), batch_targets)``; the steps themselves (schedule,
 NaN checks, checkpoints, timing) are :func:`methods.training_loop.run_steps`, shared with the K-NN
 training. Everything about a fit is
 decided by (method, samples, targets, budget, seed): on the CPU the same seed gives the same
@@ -261,16 +261,13 @@ def fit(method, samples, targets: dict, budget: str | Budget, seed: int = 0, dev
     generator = seeded_generator(seed, device)
     model = make_network(method.input_dim, method.output_dim, **budget.network_config()).to(device)
     optimizer = make_optimizer(model, budget)
-    needs_grad = method.loss_needs_input_grad
     T, B = int(budget.iterations), int(budget.batch_size)
     warmup = round(budget.warmup_fraction * T)
 
     def step_loss(step: int) -> torch.Tensor:
         idx = torch.randint(0, M, (B,), generator=generator, device=device)
         xb, tb = gather_rows(x_all, t_all, idx)
-        if needs_grad:
-            xb.requires_grad_(True)
-        return method.loss(model(xb), tb, inputs=xb, model=model)
+        return method.loss(method.predict(model, xb), tb)
 
     where = f"(method '{method.name}', budget '{budget.name}', seed {seed})"
     result = run_steps(model, optimizer, T, step_loss, log_every=budget.log_every,

@@ -45,8 +45,7 @@ without replacement (its cloud) and ``samples_per_item`` labelled samples with r
 KD-tree per item (:func:`knn_neighbourhoods`, or :func:`segment_neighbourhoods` at the midpoints)
 gives every sample its K neighbours in that item's cloud, gathered to (S, K, 3) at once. The items
 are concatenated into one batch (batch norm sees all of it), the network runs in train mode and the
-loss is ``method.loss(prediction, targets, inputs=anchors, model=model)`` (anchors with
-``requires_grad`` when ``method.loss_needs_input_grad``). The loss is checked for NaN/inf and
+loss is ``method.loss(prediction, targets)``. The loss is checked for NaN/inf and
 reported to ``progress(step=..., loss=...)`` every ``budget.log_every`` steps (a non-finite loss
 raises :class:`methods.fitting.FittingError`); the model comes back in eval mode with ``knn_k`` set
 (the K the grid queries need, :mod:`methods.knn_query`).
@@ -317,7 +316,7 @@ def train(method, shapes: Sequence[Shape], budget: str | KNNBudget, seed: int = 
     Parameters
     ----------
     method : a :class:`methods.base.LearnedPointCloudMethod` (``network_kind``, ``output_dim``,
-        ``training_targets``, ``loss``, ``loss_needs_input_grad``).
+        ``training_targets``, ``loss``).
     shapes : the training shapes (:func:`training_shapes`); ignored when ``pools`` is given.
     budget : a :class:`KNNBudget` or its name in :data:`KNN_BUDGETS`.
     seed : network initialisation, batch draws and (when built here) the pools.
@@ -336,16 +335,13 @@ def train(method, shapes: Sequence[Shape], budget: str | KNNBudget, seed: int = 
     rng = np.random.default_rng(_streams(seed)[1])
     model = make_knn_network(method.network_kind, out_dim=method.output_dim, **budget.network_config()).to(device)
     optimizer = torch.optim.AdamW(model.parameters(), lr=budget.lr, weight_decay=budget.weight_decay)
-    needs_grad = method.loss_needs_input_grad
     T = int(budget.steps)
 
     def step_loss(step: int) -> torch.Tensor:
         a, q, t = pools.batch(budget, rng)
         anchors = torch.from_numpy(a).to(device)
-        if needs_grad:
-            anchors.requires_grad_(True)
         targets = {k: torch.from_numpy(v).to(device) for k, v in t.items()}
-        return method.loss(model(anchors, torch.from_numpy(q).to(device)), targets, inputs=anchors, model=model)
+        return method.loss(model(anchors, torch.from_numpy(q).to(device)), targets)
 
     result = run_steps(model, optimizer, T, step_loss, log_every=budget.log_every,
                        where=lambda i: f"step {i} of {T} (method '{method.name}', knn budget '{budget.name}', seed {seed})",

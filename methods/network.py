@@ -352,6 +352,45 @@ def endpoint_split(model: nn.Module) -> EndpointSplit | None:
     return EndpointSplit(terms, tail)
 
 
+def value_and_input_gradient(model: nn.Module, x: torch.Tensor, output_index: int = 0,
+                              create_graph: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
+    """A network's outputs and the gradient of one output with respect to its input.
+
+    Parameters
+    ----------
+    model : a network taking (B, in_dim) inputs (points, segments, ...).
+    x : (B, in_dim) inputs (their own ``requires_grad`` is not used).
+    output_index : the output whose gradient is returned.
+    create_graph : keep the gradient differentiable in the weights (a loss on it, as UDF's).
+
+    Returns
+    -------
+    ``(model(x) (B, out_dim), d model(x)[:, output_index] / dx (B, in_dim))``.
+
+    A :class:`GridNetwork` on the CPU in float32 takes the grid's derivative from
+    :func:`methods.grid_lookup.lookup_with_jacobian` (the features and their Jacobian in one pass,
+    linear in the grid values) and autograd's only through the head: the chain rule
+    ``d f / dx = (d f / d enc) (d enc / dx) + d f / d[raw x]``, without the second-order autograd
+    graph of the grid lookup. Any other network is differentiated by autograd. The two agree to
+    float32 rounding.
+    """
+    if isinstance(model, GridNetwork) and model.k == 1:
+        levels = list(model.encoder.levels)
+        if grid_lookup.applies(levels, x):
+            codes, jacobian = grid_lookup.lookup_with_jacobian(levels, x)
+            head_in = torch.cat([codes, x], dim=1)
+            if not head_in.requires_grad:
+                head_in.requires_grad_(True)
+            out = model.head(head_in)
+            (d_in,) = torch.autograd.grad(out[:, output_index].sum(), head_in, create_graph=create_graph)
+            n = codes.shape[1]
+            return out, torch.bmm(d_in[:, None, :n], jacobian)[:, 0] + d_in[:, n:]
+    x = x.detach().requires_grad_(True)
+    out = model(x)
+    (grad,) = torch.autograd.grad(out[:, output_index].sum(), x, create_graph=create_graph)
+    return out, grad
+
+
 def make_network(in_dim: int, out_dim: int, depth: int = 9, width: int = 512, beta: float = 100.0,
                  activation: str = "softplus", backbone: str = "mlp",
                  grid_resolutions: Sequence[int] | None = None, grid_channels: int | None = None) -> nn.Module:

@@ -60,7 +60,7 @@ class OccKNNMethod(LearnedPointCloudMethod):
     def training_targets(self, fields, samples) -> dict[str, np.ndarray]:
         return {"occupancy": np.asarray(fields.occupancy(samples.points), dtype=np.float32)}
 
-    def loss(self, prediction, targets, inputs=None, model=None):
+    def loss(self, prediction, targets):
         return F.binary_cross_entropy_with_logits(prediction[:, 0], targets["occupancy"])
 
     def reconstruct(self, points, N, device=None, model=None) -> Extraction:

@@ -42,7 +42,7 @@ from scipy.ndimage import binary_dilation
 
 from benchmark.grid import LOWER, edge_endpoint_values, edge_endpoints, edge_index_to_ijk_axis, num_edges, spacing
 from methods.device import flush_denormals, get_device, synchronize
-from methods.network import endpoint_split
+from methods.network import endpoint_split, value_and_input_gradient
 
 #: Rows per forward pass (ENVIRONMENT.md: 16k-65k chunks are much faster than 1M on the CPU).
 DEFAULT_CHUNK = 32768
@@ -85,15 +85,14 @@ def evaluate(model, inputs: np.ndarray, device=None, chunk: int = DEFAULT_CHUNK)
 def evaluate_with_input_grad(model, inputs: np.ndarray, output_index: int = 0, device=None,
                              chunk: int = GRAD_CHUNK) -> tuple[np.ndarray, np.ndarray]:
     """Outputs (P, out_dim) and the gradient of output ``output_index`` w.r.t. the inputs (P, in_dim),
-    float32, by autograd in chunks (one forward + one backward per chunk, no graph kept)."""
+    float32, in chunks, no graph kept (:func:`methods.network.value_and_input_gradient`)."""
     device = _model_device(model, device)
     inputs = np.ascontiguousarray(inputs, dtype=np.float32)
     outs, grads = [], []
     with torch.enable_grad(), flush_denormals():
         for i in range(0, len(inputs), chunk):
-            x = torch.from_numpy(inputs[i:i + chunk]).to(device).requires_grad_(True)
-            y = model(x)
-            (g,) = torch.autograd.grad(y[:, output_index].sum(), x)
+            x = torch.from_numpy(inputs[i:i + chunk]).to(device)
+            y, g = value_and_input_gradient(model, x, output_index, create_graph=False)
             outs.append(y.detach().float().cpu().numpy())
             grads.append(g.float().cpu().numpy())
     if not outs:

@@ -196,7 +196,7 @@ class SALSMethod(Method):
     def training_targets(self, fields, samples) -> dict[str, np.ndarray]:
         return segment_targets(fields, self.training_segments(samples))
 
-    def loss(self, prediction, targets, inputs=None, model=None):
+    def loss(self, prediction, targets):
         return segment_loss(prediction, targets)
 
     def oracle_grid(self, fields, N, cache):

@@ -46,7 +46,7 @@ class SALSKNNMethod(LearnedPointCloudMethod):
     def training_targets(self, fields, samples) -> dict[str, np.ndarray]:
         return segment_targets(fields, samples.segments)
 
-    def loss(self, prediction, targets, inputs=None, model=None):
+    def loss(self, prediction, targets):
         return segment_loss(prediction, targets)
 
     def reconstruct(self, points, N, device=None, model=None) -> Extraction:

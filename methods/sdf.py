@@ -47,7 +47,7 @@ class SDFMethod(Method):
     def training_targets(self, fields, samples) -> dict[str, np.ndarray]:
         return {"sdf": fields.sdf(samples.points).astype(np.float32)}
 
-    def loss(self, prediction, targets, inputs=None, model=None):
+    def loss(self, prediction, targets):
         return (prediction[:, 0].clamp(-CLAMP, CLAMP) - targets["sdf"].clamp(-CLAMP, CLAMP)).abs().mean()
 
     def oracle_grid(self, fields, N, cache):

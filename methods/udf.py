@@ -6,8 +6,8 @@ Loss::
 
     mean |min(f, 0.1) - min(d, 0.1)|  +  0.1 * mean_{d < 0.1, g != 0} (1 - cos(grad_x f, g))
 
-(``grad_x f`` by autograd with ``create_graph``, so the fitting loop sets ``requires_grad`` on the
-inputs: ``loss_needs_input_grad``).
+(``grad_x f`` differentiable in the weights, :func:`methods.network.value_and_input_gradient`, from
+:meth:`UDFMethod.predict`).
 Extraction: ``methods.meshudf.meshudf_extract`` on (d, unit gradient) with the vertex UDF for the
 face filter read from the continuous field (``udf_at``: the network, or the exact UDF in oracle
 mode) when ``vertex_udf='field'`` (default), else MeshUDF's first-order estimate.
@@ -28,6 +28,7 @@ from benchmark.params import Param
 from benchmark.timing import record, stage
 from methods import query
 from methods.base import Extraction, Method, median_angle_deg, register_method
+from methods.network import value_and_input_gradient
 
 #: Loss clamp of the distance, canonical units.
 CLAMP = 0.1
@@ -57,7 +58,6 @@ class UDFMethod(Method):
     input_kind = "points"
     output_dim = 1
     extractor = "MeshUDF"
-    loss_needs_input_grad = True
     display_order = 30
     color = "#f2a541"
     components = ("values", "gradients")
@@ -75,13 +75,15 @@ class UDFMethod(Method):
         d, g = fields.udf(samples.points, return_grad=True)
         return {"udf": d.astype(np.float32), "grad": g.astype(np.float32)}
 
-    def loss(self, prediction, targets, inputs=None, model=None):
-        f = prediction[:, 0]
+    def predict(self, model, inputs):
+        """(f (B, 1), grad_x f (B, 3)), the gradient differentiable in the weights."""
+        return value_and_input_gradient(model, inputs)
+
+    def loss(self, prediction, targets):
+        values, grad_f = prediction
+        f = values[:, 0]
         d = targets["udf"]
         l1 = (f.clamp(max=CLAMP) - d.clamp(max=CLAMP)).abs().mean()
-        if inputs is None or not inputs.requires_grad:
-            raise ValueError("udf loss needs the batch inputs with requires_grad=True")
-        (grad_f,) = torch.autograd.grad(f.sum(), inputs, create_graph=True)
         g = targets["grad"]
         band = ((d < CLAMP) & (g.abs().sum(dim=1) > 0)).float()
         cos = F.cosine_similarity(grad_f, g, dim=1, eps=1e-8)

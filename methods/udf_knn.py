@@ -44,7 +44,7 @@ class UDFKNNMethod(LearnedPointCloudMethod):
     def training_targets(self, fields, samples) -> dict[str, np.ndarray]:
         return {"udf": np.asarray(fields.udf(samples.points), dtype=np.float32)}
 
-    def loss(self, prediction, targets, inputs=None, model=None):
+    def loss(self, prediction, targets):
         return (prediction[:, 0].clamp(max=CLAMP) - targets["udf"].clamp(max=CLAMP)).abs().mean()
 
     def reconstruct(self, points, N, device=None, model=None) -> Extraction:

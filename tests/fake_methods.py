@@ -23,7 +23,7 @@ class _FakeGridMethod(Method):
         target = np.asarray(getattr(fields, self.kind)(samples.points), dtype=np.float32)
         return {"target": target + np.float32(self.params.get("offset", 0.0))}
 
-    def loss(self, prediction, targets, inputs=None, model=None):
+    def loss(self, prediction, targets):
         import torch
 
         target = targets["target"].reshape(prediction.shape)
@@ -82,7 +82,7 @@ class FakeNaN(FakeSDF):
     description = "test-only: its training loss is NaN"
     display_order = 4
 
-    def loss(self, prediction, targets, inputs=None, model=None):
+    def loss(self, prediction, targets):
         return super().loss(prediction, targets) * float("nan")
 
 

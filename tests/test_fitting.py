@@ -28,7 +28,7 @@ class SphereSDF(Method):
     name = "toy-sdf"
     output_dim = 1
 
-    def loss(self, prediction, targets, inputs=None, model=None):
+    def loss(self, prediction, targets):
         return (prediction[:, 0] - targets["sdf"]).abs().mean()
 
 
@@ -131,7 +131,7 @@ def test_warmup_ramps_linearly_then_follows_the_cosine():
     seen = []
 
     class Recording(SphereSDF):
-        def loss(self, prediction, targets, inputs=None, model=None):
+        def loss(self, prediction, targets):
             seen.append(model_lrs[0]())
             return super().loss(prediction, targets)
 
@@ -201,7 +201,7 @@ def test_nan_loss_and_bad_targets_raise_fitting_error():
     samples, targets = _toy_data()
 
     class Exploding(SphereSDF):
-        def loss(self, prediction, targets, inputs=None, model=None):
+        def loss(self, prediction, targets):
             return prediction.sum() * float("nan")
 
     with pytest.raises(FittingError, match="non-finite loss at iteration 0"):

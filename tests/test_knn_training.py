@@ -33,7 +33,7 @@ class PointUDF(LearnedPointCloudMethod):
     def training_targets(self, fields, samples):
         return {"udf": np.minimum(fields.udf(samples.points), 0.1).astype(np.float32)}
 
-    def loss(self, prediction, targets, inputs=None, model=None):
+    def loss(self, prediction, targets):
         return F.l1_loss(prediction[:, 0].clamp(max=0.1), targets["udf"])
 
 
@@ -48,7 +48,7 @@ class SegmentOS(LearnedPointCloudMethod):
         hit, s, _ = fields.segments(samples.segments[:, 0], samples.segments[:, 1])
         return {"o": hit.astype(np.float32), "s": s.astype(np.float32)}
 
-    def loss(self, prediction, targets, inputs=None, model=None):
+    def loss(self, prediction, targets):
         o = targets["o"]
         s_err = ((torch.sigmoid(prediction[:, 1]) - targets["s"]).abs() * o).sum() / o.sum().clamp(min=1.0)
         return 10.0 * s_err + F.binary_cross_entropy_with_logits(prediction[:, 0], o)
@@ -66,7 +66,7 @@ class NaNTargets(PointUDF):
 class NaNLoss(PointUDF):
     name = "test-nan-loss-knn"
 
-    def loss(self, prediction, targets, inputs=None, model=None):
+    def loss(self, prediction, targets):
         return super().loss(prediction, targets) * float("nan")
 
 
