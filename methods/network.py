@@ -384,6 +384,8 @@ def value_and_input_gradient(model: nn.Module, x: torch.Tensor, output_index: in
             out = model.head(head_in)
             (d_in,) = torch.autograd.grad(out[:, output_index].sum(), head_in, create_graph=create_graph)
             n = codes.shape[1]
+            if not create_graph:
+                jacobian = jacobian.detach()
             return out, torch.bmm(d_in[:, None, :n], jacobian)[:, 0] + d_in[:, n:]
     x = x.detach().requires_grad_(True)
     out = model(x)

@@ -246,6 +246,7 @@ def test_value_and_input_gradient_of_a_grid_network_matches_autograd():
         for level in model.encoder.levels:
             level.uniform_(-0.3, 0.3)
     x = torch.rand(3000, 3, generator=torch.Generator().manual_seed(1)) * 2.4 - 1.2
+    assert not value_and_input_gradient(model, x, output_index=1, create_graph=False)[1].requires_grad
     out, grad = value_and_input_gradient(model, x, output_index=1)
     _input_gradient_loss(out, grad).backward()
     ours = [p.grad.clone() for p in model.parameters()]
