@@ -285,11 +285,15 @@ class GridNetwork(nn.Module):
                            grid_resolutions=self.encoder.resolutions, grid_channels=self.encoder.channels)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        points = x.reshape(-1, 3)  # (B k, 3): u and v of a segment on consecutive rows
-        codes = torch.cat([self.encoder(points), points], dim=1).reshape(x.shape[0], -1)
+        return self.head(self.head_input(self.encoder(x.reshape(-1, 3)), x))
+
+    def head_input(self, features: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        """The head's input (B, k (L C + 3) [+ 3]) from the grid features of the input's points
+        (B k, L C; u and v of a segment on consecutive rows) and the input x (B, 3 k)."""
+        codes = torch.cat([features, x.reshape(-1, 3)], dim=1).reshape(x.shape[0], -1)
         if self.k == 2:
             codes = torch.cat([codes, (x[:, 3:] - x[:, :3]) / SEGMENT_SCALE], dim=1)
-        return self.head(codes)
+        return codes
 
 
 #: Backbone names (the budget's ``backbone``).
@@ -369,24 +373,31 @@ def value_and_input_gradient(model: nn.Module, x: torch.Tensor, output_index: in
 
     A :class:`GridNetwork` on the CPU in float32 takes the grid's derivative from
     :func:`methods.grid_lookup.lookup_with_jacobian` (the features and their Jacobian in one pass,
-    linear in the grid values) and autograd's only through the head: the chain rule
-    ``d f / dx = (d f / d enc) (d enc / dx) + d f / d[raw x]``, without the second-order autograd
-    graph of the grid lookup. Any other network is differentiated by autograd. The two agree to
-    float32 rounding.
+    linear in the grid values) and autograd's only through the head, by the chain rule: for each
+    point p of the input, ``d f / dp = (d f / d enc(p)) (d enc(p) / dp) + d f / d[raw p]`` (a
+    segment's offset ``(v - u) / SEGMENT_SCALE`` adds its block to v's and subtracts it from u's),
+    without the second-order autograd graph of the grid lookup. Any other network is differentiated
+    by autograd. The two agree to float32 rounding.
     """
-    if isinstance(model, GridNetwork) and model.k == 1:
+    if isinstance(model, GridNetwork):
         levels = list(model.encoder.levels)
-        if grid_lookup.applies(levels, x):
-            codes, jacobian = grid_lookup.lookup_with_jacobian(levels, x)
-            head_in = torch.cat([codes, x], dim=1)
+        points = x.reshape(-1, 3)
+        if grid_lookup.applies(levels, points):
+            features, jacobian = grid_lookup.lookup_with_jacobian(levels, points)
+            head_in = model.head_input(features, x)
             if not head_in.requires_grad:
                 head_in.requires_grad_(True)
             out = model.head(head_in)
             (d_in,) = torch.autograd.grad(out[:, output_index].sum(), head_in, create_graph=create_graph)
-            n = codes.shape[1]
             if not create_graph:
                 jacobian = jacobian.detach()
-            return out, torch.bmm(d_in[:, None, :n], jacobian)[:, 0] + d_in[:, n:]
+            n, k = features.shape[1], model.k
+            d_points = d_in[:, :k * (n + 3)].reshape(-1, n + 3)  # (B k, L C + 3): per point, its code and p
+            grad = (torch.bmm(d_points[:, None, :n], jacobian)[:, 0] + d_points[:, n:]).reshape(x.shape)
+            if k == 2:
+                d_offset = d_in[:, k * (n + 3):] / SEGMENT_SCALE
+                grad = grad + torch.cat([-d_offset, d_offset], dim=1)
+            return out, grad
     x = x.detach().requires_grad_(True)
     out = model(x)
     (grad,) = torch.autograd.grad(out[:, output_index].sum(), x, create_graph=create_graph)

@@ -232,26 +232,31 @@ def test_backbone_errors():
 
 
 def _input_gradient_loss(out, grad):
-    return (out ** 2).sum() + (grad * torch.tensor([0.3, -1.0, 0.5], dtype=grad.dtype)).sum() + (grad ** 2).sum()
+    weights = torch.tensor([0.3, -1.0, 0.5, 0.7, 0.2, -0.4], dtype=grad.dtype)[:grad.shape[1]]
+    return (out ** 2).sum() + (grad * weights).sum() + (grad ** 2).sum()
 
 
-def test_value_and_input_gradient_of_a_grid_network_matches_autograd():
+@pytest.mark.parametrize("in_dim", [3, 6])
+def test_value_and_input_gradient_of_a_grid_network_matches_autograd(in_dim):
     """The grid network's analytic path (grid Jacobian x head's autograd gradient) gives the outputs,
     the input gradient and the weights' gradient of a loss on that gradient as float64 autograd
-    does, to float32 rounding; points on every side of the cube, grid values of size 0.3."""
+    does, to float32 rounding, for points and for segments (whose offset enters the head too);
+    points on every side of the cube, grid values of size 0.3."""
     torch.manual_seed(0)
     config = dict(depth=3, width=64, beta=BETA, backbone="grid", grid_resolutions=(4, 16), grid_channels=4)
-    model = make_network(3, 2, **config)
+    model = make_network(in_dim, 2, **config)
     with torch.no_grad():
         for level in model.encoder.levels:
             level.uniform_(-0.3, 0.3)
     x = torch.rand(3000, 3, generator=torch.Generator().manual_seed(1)) * 2.4 - 1.2
+    if in_dim == 6:  # segments of length ~0.02 around those points
+        x = torch.cat([x, x + 0.02 * torch.randn(3000, 3, generator=torch.Generator().manual_seed(2))], dim=1)
     assert not value_and_input_gradient(model, x, output_index=1, create_graph=False)[1].requires_grad
     out, grad = value_and_input_gradient(model, x, output_index=1)
     _input_gradient_loss(out, grad).backward()
     ours = [p.grad.clone() for p in model.parameters()]
 
-    reference = make_network(3, 2, **config).double()
+    reference = make_network(in_dim, 2, **config).double()
     reference.load_state_dict({k: v.double() for k, v in model.state_dict().items()})
     x64 = x.double().requires_grad_(True)
     out64 = reference(x64)
