@@ -143,7 +143,7 @@ def tier_methods(tier: Tier) -> list[str]:
 def run_tier(tier: Tier, data_dir: Path, out_dir: Path, workers: int, python: str = sys.executable,
              extra_args: tuple[str, ...] = (), env: dict[str, str] | None = None,
              methods: list[str] | None = None) -> pd.DataFrame:
-    """Run the tier's two benchmark runs (subset + non-manifold pairs) on ``workers`` processes of
+    """Run the tier's two benchmark runs (subset + non-manifold pairs) on ``workers`` jobs at a time of
     one torch thread each (the same numbers whatever the count); return their results.
 
     ``methods`` default to :func:`tier_methods`.
@@ -156,7 +156,7 @@ def run_tier(tier: Tier, data_dir: Path, out_dir: Path, workers: int, python: st
         cmd = [
             python, str(REPO / "run_benchmark.py"), "--methods", *(methods or tier_methods(tier)), "--dataset", dataset,
             "--data-dir", str(data_dir), "--list", str(BASELINES / list_file), "--out", str(run_dir),
-            "--quiet", "--executor", "process", "--workers", str(workers), "--threads", "1",
+            "--quiet", *_executor_args(workers), "--threads", "1",
             *tier.run_args, *extra_args,
         ]
         print("$ " + " ".join(cmd), flush=True)
@@ -165,6 +165,14 @@ def run_tier(tier: Tier, data_dir: Path, out_dir: Path, workers: int, python: st
             raise RegressionError(f"run_benchmark.py exited with {proc.returncode} for tier {tier.name} ({dataset})")
         frames.append(pd.read_csv(run_dir / "results.csv"))
     return pd.concat(frames, ignore_index=True)
+
+
+def _executor_args(workers: int) -> tuple[str, ...]:
+    """One torch thread per job either way (the same numbers): with one worker the jobs run in the
+    run's own process (no worker process to start and import into), else in process workers."""
+    if workers == 1:
+        return ("--executor", "local")
+    return ("--executor", "process", "--workers", str(workers))
 
 
 def measure_spread(tier: Tier, data_dir: Path, work_dir: Path, seeds: tuple[int, ...],
