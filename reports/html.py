@@ -154,13 +154,11 @@ def _prediction_figure(summary: Summary, shape: str, method: str, path: Path, gt
         if len(F) > MAX_RENDER_FACES:  # a thumbnail cannot show more; keeps huge outputs cheap
             V, F = render.face_subset(V, F, MAX_RENDER_FACES)
             notes.append(f"thumbnail of a random {MAX_RENDER_FACES:,}-face subset")
-        shaded = _img(render.render_mesh(V, F, size=(size, size), bounds=bounds, base_color=render.BASE_COLOR),
-                      f"{shape} {method}")
         if gt is not None and len(gt[1]):
-            colors = render.error_colors(render.distances_to_mesh(V, *gt), vmax)
-            err = _img(render.render_mesh(V, F, colors=colors, size=(size, size), bounds=bounds),
-                       f"{shape} {method} error")
+            shaded_png, err_png = render.render_mesh_and_error(V, F, *gt, vmax, size=(size, size), bounds=bounds)
+            shaded, err = _img(shaded_png, f"{shape} {method}"), _img(err_png, f"{shape} {method} error")
         else:
+            shaded = _img(render.render_mesh(V, F, size=(size, size), bounds=bounds), f"{shape} {method}")
             err = _placeholder("missing", "no GT", "distance colouring needs gt.ply")
     except Exception as exc:  # noqa: BLE001 -- one bad mesh never breaks the report
         return _placeholder("failed", "render failed", one_line(exc)), "", ""

@@ -184,6 +184,34 @@ def render_mesh(
     renders); default: the mesh's own box. view = (azimuth, elevation) degrees. An empty mesh (or one
     with no finite triangle) gives a blank image of the same size.
     """
+    V, F, width, height = _checked(vertices, faces, size)
+    mode, color_values = _resolve_colors(colors, len(V), len(F), np.asarray(base_color, dtype=float))
+    frame = _Frame(V, F, width, height, bounds, view)
+    return _encode_png(frame.shade(mode, color_values, outline))
+
+
+def render_mesh_and_error(vertices, faces, gt_vertices, gt_faces, vmax: float,
+                          size: tuple[int, int] = (256, 256), *, bounds=None,
+                          view: tuple[float, float] = DEFAULT_VIEW, base_color=BASE_COLOR,
+                          outline: bool = True) -> tuple[bytes, bytes]:
+    """PNG bytes of a mesh shaded in ``base_color`` and of the same view coloured by each vertex's
+    distance to the GT mesh (:func:`error_colors` of :func:`distances_to_mesh`, ramp up to ``vmax``).
+
+    The same two images as ``render_mesh(vertices, faces, ...)`` and ``render_mesh(vertices, faces,
+    colors=error_colors(distances_to_mesh(vertices, gt_vertices, gt_faces), vmax), ...)``, from one
+    rasterisation, and with distances computed only for the vertices of faces that cover a pixel
+    (the others cannot colour one). Arguments as :func:`render_mesh`.
+    """
+    V, F, width, height = _checked(vertices, faces, size)
+    frame = _Frame(V, F, width, height, bounds, view)
+    shaded = _encode_png(frame.shade("uniform", np.asarray(base_color, dtype=float), outline))
+    distances = np.full(len(V), np.nan)
+    seen = frame.visible_vertices()
+    distances[seen] = distances_to_mesh(V[seen], gt_vertices, gt_faces)
+    return shaded, _encode_png(frame.shade("vertex", error_colors(distances, vmax), outline))
+
+
+def _checked(vertices, faces, size):
     width, height = int(size[0]), int(size[1])
     if width <= 0 or height <= 0:
         raise ValueError(f"size must be positive (width, height), got {size}")
@@ -191,57 +219,74 @@ def render_mesh(
     F = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     if len(F) and (F.min() < 0 or F.max() >= len(V)):
         raise ValueError(f"faces index vertices outside [0, {len(V)})")
-    mode, color_values = _resolve_colors(colors, len(V), len(F), np.asarray(base_color, dtype=float))
-    finite_faces = np.isfinite(V).all(1)[F].all(1) if len(F) else np.zeros(0, bool)
-    if not finite_faces.any():
-        return _encode_png(np.broadcast_to(BACKGROUND, (height, width, 3)))
+    return V, F, width, height
 
-    if bounds is None:
-        used = V[F[finite_faces]].reshape(-1, 3)
-        lo, hi = used.min(0), used.max(0)
-    else:
-        lo, hi = (np.asarray(b, dtype=float).reshape(3) for b in bounds)
-    R = camera_rotation(*view)
-    corners = _box_corners(lo, hi) @ R.T
-    c_min, c_max = corners.min(0), corners.max(0)
-    centre = (c_min + c_max) / 2.0
-    extent = max(float((c_max - c_min)[:2].max()), 1e-9)
 
-    ss = _SUPERSAMPLE
-    W, H = width * ss, height * ss
-    scale = 0.9 * min(W, H) / extent  # 5% margin on each side
-    cam = np.where(np.isfinite(V), V, 0.0) @ R.T
-    screen = np.stack([(cam[:, 0] - centre[0]) * scale + W / 2.0, H / 2.0 - (cam[:, 1] - centre[1]) * scale], 1)
-    depth = -cam[:, 2]
-    F_draw = F[finite_faces]
-    face_index = np.flatnonzero(finite_faces)
-    face_id, bary, zbuf = rasterize(screen, depth, F_draw, W, H)
+class _Frame:
+    """One rasterisation of a mesh (its finite faces) through the camera, supersampled: which face
+    and barycentric weights cover each pixel, and its depth; :meth:`shade` colours it."""
 
-    image = np.broadcast_to(BACKGROUND, (H, W, 3)).copy()
-    covered = face_id >= 0
-    fid = face_id[covered]
-    if fid.size:
-        tri = cam[F_draw[fid]]
-        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
-        lights = _LIGHTS / np.linalg.norm(_LIGHTS, axis=1, keepdims=True)
-        ndotl = np.abs(n @ lights.T)  # two-sided
-        half = lights[0] + np.array([0.0, 0.0, 1.0])
-        half /= np.linalg.norm(half)
-        diffuse = _AMBIENT + ndotl @ _LIGHT_WEIGHTS
-        specular = _SPECULAR * np.abs(n @ half) ** _SHININESS
-        if mode == "uniform":
-            albedo = np.broadcast_to(color_values, (fid.size, 3))
-        elif mode == "face":
-            albedo = color_values[face_index[fid]]
+    def __init__(self, V, F, width, height, bounds, view):
+        self.width, self.height = width, height
+        finite_faces = np.isfinite(V).all(1)[F].all(1) if len(F) else np.zeros(0, bool)
+        self.empty = not finite_faces.any()
+        if self.empty:
+            return
+        if bounds is None:
+            used = V[F[finite_faces]].reshape(-1, 3)
+            lo, hi = used.min(0), used.max(0)
         else:
-            w = bary[covered]
-            albedo = np.einsum("pk,pkc->pc", w, color_values[F_draw[fid]])
-        image[covered] = np.clip(albedo * diffuse[:, None] + specular[:, None], 0.0, 1.0)
-        if outline:
-            image = _darken_edges(image, covered, zbuf, depth_scale=extent)
-    small = image.reshape(height, ss, width, ss, 3).mean(axis=(1, 3))
-    return _encode_png(small)
+            lo, hi = (np.asarray(b, dtype=float).reshape(3) for b in bounds)
+        R = camera_rotation(*view)
+        corners = _box_corners(lo, hi) @ R.T
+        c_min, c_max = corners.min(0), corners.max(0)
+        centre = (c_min + c_max) / 2.0
+        self.extent = max(float((c_max - c_min)[:2].max()), 1e-9)
+        W, H = width * _SUPERSAMPLE, height * _SUPERSAMPLE
+        scale = 0.9 * min(W, H) / self.extent  # 5% margin on each side
+        self.cam = np.where(np.isfinite(V), V, 0.0) @ R.T
+        screen = np.stack([(self.cam[:, 0] - centre[0]) * scale + W / 2.0,
+                           H / 2.0 - (self.cam[:, 1] - centre[1]) * scale], 1)
+        self.F_draw = F[finite_faces]
+        self.face_index = np.flatnonzero(finite_faces)
+        self.face_id, self.bary, self.zbuf = rasterize(screen, -self.cam[:, 2], self.F_draw, W, H)
+        self.covered = self.face_id >= 0
+
+    def visible_vertices(self) -> np.ndarray:
+        """Indices of the vertices of every face that covers a pixel."""
+        if self.empty:
+            return np.zeros(0, dtype=np.int64)
+        return np.unique(self.F_draw[np.unique(self.face_id[self.covered])])
+
+    def shade(self, mode: str, color_values: np.ndarray, outline: bool) -> np.ndarray:
+        """The (height, width, 3) image in [0, 1] with ``(mode, colors)`` of :func:`_resolve_colors`."""
+        if self.empty:
+            return np.broadcast_to(BACKGROUND, (self.height, self.width, 3))
+        ss = _SUPERSAMPLE
+        image = np.broadcast_to(BACKGROUND, (self.height * ss, self.width * ss, 3)).copy()
+        covered = self.covered
+        fid = self.face_id[covered]
+        if fid.size:
+            tri = self.cam[self.F_draw[fid]]
+            n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+            n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+            lights = _LIGHTS / np.linalg.norm(_LIGHTS, axis=1, keepdims=True)
+            ndotl = np.abs(n @ lights.T)  # two-sided
+            half = lights[0] + np.array([0.0, 0.0, 1.0])
+            half /= np.linalg.norm(half)
+            diffuse = _AMBIENT + ndotl @ _LIGHT_WEIGHTS
+            specular = _SPECULAR * np.abs(n @ half) ** _SHININESS
+            if mode == "uniform":
+                albedo = np.broadcast_to(color_values, (fid.size, 3))
+            elif mode == "face":
+                albedo = color_values[self.face_index[fid]]
+            else:
+                w = self.bary[covered]
+                albedo = np.einsum("pk,pkc->pc", w, color_values[self.F_draw[fid]])
+            image[covered] = np.clip(albedo * diffuse[:, None] + specular[:, None], 0.0, 1.0)
+            if outline:
+                image = _darken_edges(image, covered, self.zbuf, depth_scale=self.extent)
+        return image.reshape(self.height, ss, self.width, ss, 3).mean(axis=(1, 3))
 
 
 def _darken_edges(image, covered, zbuf, depth_scale: float, strength: float = 0.55):

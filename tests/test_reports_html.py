@@ -21,7 +21,8 @@ import trimesh
 from PIL import Image
 
 import reports
-from reports.render import BACKGROUND, distances_to_mesh, error_colors, render_mesh, ERROR_STOPS
+from reports.render import (BACKGROUND, ERROR_STOPS, distances_to_mesh, error_colors, render_mesh,
+                            render_mesh_and_error)
 from tests.test_reports_tables import CONTEXT, make_results
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -105,6 +106,32 @@ def test_distance_and_error_colors_by_hand():
     last = [int(ERROR_STOPS[-1][1][i:i + 2], 16) / 255 for i in (1, 3, 5)]
     assert c[0] == pytest.approx(first) and c[1] == pytest.approx(last) and c[2] == pytest.approx(last)
     assert c[3] == pytest.approx([0.5, 0.5, 0.5])
+
+
+def test_shaded_and_error_renders_from_one_rasterisation_are_the_separate_renders(monkeypatch):
+    """Two spheres, the far one half hidden behind the near one, against a GT sphere: the pair
+    equals the two separate renders byte for byte, although the distances are computed only for
+    the vertices of faces that cover a pixel (fewer than all)."""
+    near = trimesh.creation.icosphere(subdivisions=3, radius=0.5)
+    far = trimesh.creation.icosphere(subdivisions=3, radius=0.6)
+    far.apply_translation([0.2, 0.1, -0.9])
+    both = trimesh.util.concatenate([near, far])
+    V, F = np.asarray(both.vertices), np.asarray(both.faces)
+    gt = trimesh.creation.icosphere(subdivisions=4, radius=0.55)
+    gV, gF = np.asarray(gt.vertices), np.asarray(gt.faces)
+    bounds = (V.min(0), V.max(0))
+    import reports.render as render
+
+    queried = []
+    monkeypatch.setattr(render, "distances_to_mesh", lambda P, *gt: queried.append(len(P)) or distances_to_mesh(P, *gt))
+    shaded, err = render_mesh_and_error(V, F, gV, gF, 0.1, size=(96, 96), bounds=bounds)
+    assert 0 < queried[0] < 0.75 * len(V)
+    assert shaded == render_mesh(V, F, size=(96, 96), bounds=bounds)
+    colors = error_colors(distances_to_mesh(V, gV, gF), 0.1)
+    assert err == render_mesh(V, F, colors=colors, size=(96, 96), bounds=bounds)
+    assert shaded != err
+    empty = render_mesh_and_error(V[:0], F[:0], gV, gF, 0.1, size=(8, 8))
+    assert empty[0] == empty[1] == render_mesh(V[:0], F[:0], size=(8, 8))
 
 
 # ---------------------------------------------------------------------------------------------
