@@ -1,6 +1,9 @@
 """Sparse vs dense grid queries at 128^3 (methods/query.py), and grid edges with shared endpoints.
 
 Run the ratio table (interleaved, one process):  .venv/bin/python benchmarks/bench_query.py [N] [threads]
+SALS's query + normals against SDF's query on networks fitted at the *cpu* budget (one thread, medians
+of 3 interleaved; fits SALS and SDF on each mesh first, about a minute a mesh):
+    .venv/bin/python benchmarks/bench_query.py --fitted MESH [MESH ...]
 or as pytest-benchmark:  .venv/bin/pytest benchmarks/bench_query.py -o python_files='bench_*.py' --benchmark-enable -q
 Goal: sparse / dense query time <= 0.2 at N = 128 for points (sdf) and edges (sals, 6.24M edges dense).
 Also: a band of grid edges through ``evaluate_grid_edges`` (each endpoint encoded once) against the plain
@@ -17,6 +20,7 @@ from __future__ import annotations
 
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -130,5 +134,40 @@ def main(N=128, threads=None):
           f"ratio {shared / plain:.3f}")
 
 
+def fitted_query_ratio(path, N: int = 128, budget: str = "cpu", rounds: int = 3) -> dict:
+    """Seconds of SALS's ``neural_grid`` (edge query + normals) and SDF's (point query) on networks
+    fitted to the mesh at ``path`` (seed 0), one torch thread, medians of ``rounds`` interleaved."""
+    from benchmark.fields import ExactFields
+    from benchmark.sampler import sample_training_data
+    from datasets.io import load_shape
+    from methods.base import get_method
+    from methods.fitting import fit, get_budget
+
+    torch.set_num_threads(1)
+    shape = load_shape(path)
+    b = get_budget(budget)
+    samples = sample_training_data(shape.vertices, shape.faces, b.num_samples, np.random.default_rng(0))
+    fields = ExactFields(shape.vertices, shape.faces)
+    queries = {}
+    for name in ("sals", "sdf"):
+        method = get_method(name)
+        model = fit(method, samples, method.training_targets(fields, samples), b, seed=0).model
+        queries[name] = lambda method=method, model=model: method.neural_grid(model, N, "cpu")
+    times = {name: [] for name in queries}
+    for _ in range(rounds):
+        for name, run in queries.items():
+            t0 = time.perf_counter()
+            run()
+            times[name].append(time.perf_counter() - t0)
+    sals, sdf = (float(np.median(times[name])) for name in ("sals", "sdf"))
+    return {"sals": sals, "sdf": sdf, "ratio": sals / sdf}
+
+
 if __name__ == "__main__":
-    main(*(int(a) for a in sys.argv[1:]))
+    if sys.argv[1:2] == ["--fitted"]:
+        print("| part | SALS s | SDF s | ratio |\n|---|---|---|---|")
+        for mesh in sys.argv[2:]:
+            r = fitted_query_ratio(mesh)
+            print(f"| {Path(mesh).name.split('_')[0]} | {r['sals']:.2f} | {r['sdf']:.2f} | {r['ratio']:.2f} |", flush=True)
+    else:
+        main(*(int(a) for a in sys.argv[1:]))
