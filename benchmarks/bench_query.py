@@ -1,9 +1,9 @@
 """Sparse vs dense grid queries at 128^3 (methods/query.py), and grid edges with shared endpoints.
 
-Run the ratio table (interleaved, one process):  .venv/bin/python benchmarks/bench_query.py [N] [threads]
+Run the ratio table (interleaved, one process):  .venv/bin/python -m benchmarks.bench_query [N] [threads]
 SALS's query + normals against SDF's query on networks fitted at the *cpu* budget (one thread, medians
 of 3 interleaved; fits SALS and SDF on each mesh first, about a minute a mesh):
-    .venv/bin/python benchmarks/bench_query.py --fitted MESH [MESH ...]
+    .venv/bin/python -m benchmarks.bench_query --fitted MESH [MESH ...]
 or as pytest-benchmark:  .venv/bin/pytest benchmarks/bench_query.py -o python_files='bench_*.py' --benchmark-enable -q
 Goal: sparse / dense query time <= 0.2 at N = 128 for points (sdf) and edges (sals, 6.24M edges dense).
 Also: a band of grid edges through ``evaluate_grid_edges`` (each endpoint encoded once) against the plain
