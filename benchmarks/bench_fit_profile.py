@@ -35,7 +35,6 @@ from __future__ import annotations
 import argparse
 import time
 
-import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F

@@ -28,7 +28,6 @@ from typing import Sequence
 import numba
 import numpy as np
 import torch
-from numba.core import types
 from numba.extending import intrinsic
 
 _ONE = np.float32(1.0)
@@ -160,16 +159,36 @@ def applies(levels: Sequence[torch.Tensor], points: torch.Tensor) -> bool:
             and all(level.device.type == "cpu" and level.dtype == torch.float32 for level in levels))
 
 
+def _rows(level: torch.Tensor) -> np.ndarray:
+    """A (R, R, R, C) level as its (R^3, C) float32 rows (a view where the level is contiguous)."""
+    R, C = level.shape[0], level.shape[-1]
+    return level.detach().contiguous().reshape(R * R * R, C).numpy()
+
+
+def _level_gradients(ctx, adjoint) -> tuple:
+    """The backward's gradients of ``(points, *levels)``: None for the points and for each level
+    autograd does not need; for the others a zeroed level filled by ``adjoint(R, column, rows)``
+    (``column`` is the level's first feature in the concatenated output)."""
+    grads, column = [None], 0
+    for shape, wanted in zip(ctx.shapes, ctx.needs_input_grad[1:]):
+        level_grad = None
+        if wanted:
+            level_grad = torch.zeros(shape, dtype=torch.float32)
+            adjoint(shape[0], column, _rows(level_grad))
+        grads.append(level_grad)
+        column += shape[-1]
+    return tuple(grads)
+
+
 class _Lookup(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, points, *levels):
         P, C = points.shape[0], levels[0].shape[-1]
         out = torch.empty(P, len(levels) * C, dtype=torch.float32)
-        xyz, values = points.detach().contiguous(), out.numpy()
+        xyz = points.detach().contiguous()
         for i, level in enumerate(levels):
-            R = level.shape[0]
-            _lookup(xyz.numpy(), level.detach().contiguous().reshape(R * R * R, C).numpy(), R, values, i * C)
+            _lookup(xyz.numpy(), _rows(level), level.shape[0], out.numpy(), i * C)
         ctx.save_for_backward(xyz)
         ctx.shapes = [level.shape for level in levels]
         return out
@@ -178,17 +197,8 @@ class _Lookup(torch.autograd.Function):
     @torch.autograd.function.once_differentiable
     def backward(ctx, grad):
         (xyz,) = ctx.saved_tensors
-        grad = grad.detach().numpy()
-        grads = []
-        for i, (shape, wanted) in enumerate(zip(ctx.shapes, ctx.needs_input_grad[1:])):
-            if not wanted:
-                grads.append(None)
-                continue
-            R, C = shape[0], shape[-1]
-            level_grad = torch.zeros(shape, dtype=torch.float32)
-            _lookup_adjoint(xyz.numpy(), grad, R, i * C, level_grad.reshape(R * R * R, C).numpy())
-            grads.append(level_grad)
-        return (None, *grads)
+        xyz, grad = xyz.numpy(), grad.detach().numpy()
+        return _level_gradients(ctx, lambda R, column, rows: _lookup_adjoint(xyz, grad, R, column, rows))
 
 
 def lookup(levels: Sequence[torch.Tensor], points: torch.Tensor) -> torch.Tensor:
@@ -216,9 +226,7 @@ class _LookupWithJacobian(torch.autograd.Function):
         jac = torch.empty(P, len(levels) * C, 3, dtype=torch.float32)
         xyz = points.detach().contiguous()
         for i, level in enumerate(levels):
-            R = level.shape[0]
-            _lookup_with_jacobian(xyz.numpy(), level.detach().contiguous().reshape(R * R * R, C).numpy(), R,
-                                  out.numpy(), jac.numpy(), i * C)
+            _lookup_with_jacobian(xyz.numpy(), _rows(level), level.shape[0], out.numpy(), jac.numpy(), i * C)
         ctx.save_for_backward(xyz)
         ctx.shapes = [level.shape for level in levels]
         return out, jac
@@ -228,19 +236,11 @@ class _LookupWithJacobian(torch.autograd.Function):
     def backward(ctx, grad, grad_jac):
         (xyz,) = ctx.saved_tensors
         P, LC = xyz.shape[0], sum(shape[-1] for shape in ctx.shapes)
+        xyz = xyz.numpy()
         grad = (torch.zeros(P, LC) if grad is None else grad.detach()).numpy()
         grad_jac = (torch.zeros(P, LC, 3) if grad_jac is None else grad_jac.detach()).numpy()
-        grads = []
-        for i, (shape, wanted) in enumerate(zip(ctx.shapes, ctx.needs_input_grad[1:])):
-            if not wanted:
-                grads.append(None)
-                continue
-            R, C = shape[0], shape[-1]
-            level_grad = torch.zeros(shape, dtype=torch.float32)
-            _lookup_with_jacobian_adjoint(xyz.numpy(), grad, grad_jac, R, i * C,
-                                          level_grad.reshape(R * R * R, C).numpy())
-            grads.append(level_grad)
-        return (None, *grads)
+        return _level_gradients(ctx, lambda R, column, rows: _lookup_with_jacobian_adjoint(xyz, grad, grad_jac, R,
+                                                                                             column, rows))
 
 
 def lookup_with_jacobian(levels: Sequence[torch.Tensor], points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

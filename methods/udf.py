@@ -20,7 +20,6 @@ normalised; 0 elsewhere.
 from __future__ import annotations
 
 import numpy as np
-import torch
 import torch.nn.functional as F
 
 from benchmark.grid import spacing
@@ -45,7 +44,7 @@ def network_udf(model, device=None):
 
 
 def network_udf_and_gradient(model, points: np.ndarray, device=None) -> tuple[np.ndarray, np.ndarray]:
-    """max(f, 0) (P,) and the unit autograd gradient of f (P, 3; 0 where it vanishes) at ``points``."""
+    """max(f, 0) (P,) and the unit input gradient of f (P, 3; 0 where it vanishes) at ``points``."""
     out, g = query.evaluate_with_input_grad(model, np.asarray(points, dtype=np.float32), 0, device)
     norm = np.linalg.norm(g, axis=1, keepdims=True)
     return np.maximum(out[:, 0], 0.0), np.divide(g, norm, out=np.zeros_like(g), where=norm > 0)
