@@ -20,11 +20,15 @@ that passes exactly through a triangle's edge or vertex:
 
 A triangle whose projection has zero area (parallel to the line) is never hit.
 
-Work is split into batches of about :data:`RASTER_BATCH` (triangle, line) pairs to bound memory.
+The grid lines of :func:`grid_line_hits` are tested in vectorised batches of about
+:data:`RASTER_BATCH` (triangle, line) pairs (to bound memory); the rays from arbitrary points of
+:func:`closed_chain_winding_number` in a compiled loop (numba) over triangles, bucket cells and
+points, with the same arithmetic.
 """
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from benchmark.grid import axis_coords, spacing
@@ -82,15 +86,52 @@ def _batch_bounds(counts: np.ndarray) -> list[int]:
     return list(np.searchsorted(cum, np.arange(0, total, RASTER_BATCH), side="right")) + [len(counts)]
 
 
-def closed_chain_winding_number(vertices, faces, points, cells: int | None = None):
+def _bucket_grid(V2, P2, cells):
+    """The cells x cells bucket grid on the bounding square of projected triangles and points:
+    (lower corner (2,), cell size, each point's cell id (P,))."""
+    lo = np.minimum(V2.min(axis=0), P2.min(axis=0))
+    size = max(float(np.max(np.maximum(V2.max(axis=0), P2.max(axis=0)) - lo)), 1e-300) * (1 + 1e-9)
+    cell = size / cells
+    pc = np.clip(((P2 - lo) / cell).astype(np.int64), 0, cells - 1)
+    return lo, cell, pc[:, 0] * cells + pc[:, 1]
+
+
+def _triangle_cells(tri2, lo, cell, cells):
+    """Per triangle, the first and last bucket cell (m, 2) of its projected bounding box."""
+    cmin = np.clip(((tri2.min(axis=1) - lo) / cell).astype(np.int64), 0, cells - 1)
+    cmax = np.clip(((tri2.max(axis=1) - lo) / cell).astype(np.int64), 0, cells - 1)
+    return cmin, cmax
+
+
+def _candidate_pairs(vertices, faces, P, cells, axis):
+    """How many (triangle, point) pairs the crossing count along ``axis`` tests, before the edge-line
+    cull: per triangle, the points in the bucket cells of its projected bounding box (a summed-area
+    table of the points per cell)."""
+    others = [a for a in range(3) if a != axis]
+    V2, tri2, area2, *_ = _triangle_projection(vertices, faces, axis)
+    lo, cell, pid = _bucket_grid(V2, P[:, others], cells)
+    per_cell = np.bincount(pid, minlength=cells * cells).reshape(cells, cells)
+    table = np.pad(per_cell.cumsum(axis=0).cumsum(axis=1), ((1, 0), (1, 0)))
+    cmin, cmax = _triangle_cells(tri2, lo, cell, cells)
+    cmax = cmax + 1
+    pairs = (table[cmax[:, 0], cmax[:, 1]] - table[cmin[:, 0], cmax[:, 1]] - table[cmax[:, 0], cmin[:, 1]]
+             + table[cmin[:, 0], cmin[:, 1]])
+    return int(pairs[area2 != 0].sum())
+
+
+def closed_chain_winding_number(vertices, faces, points, cells: int | None = None, axis: int | None = None):
     """Exact integer winding number of a *closed chain* at arbitrary points, by crossing counts.
 
-    w(p) = sum over crossings of the ray p - t e_x (t > 0) of -sign(n_x), with the watertight tie rule
-    of :func:`grid_line_hits`. Rays and triangles are joined through a cells x cells bucket grid on
-    the (y, z) bounding square (default cells = clip(sqrt(P / 8), 4, 128)); each triangle is
-    rasterised conservatively into the cells its projection overlaps. Only valid for closed chains
-    (see :attr:`benchmark.fields.ExactFields.is_closed_chain`); points exactly on the surface get one side.
-    Returns (P,) int64.
+    w(p) = sum over crossings of the ray p - t e_axis (t > 0) of -sign(n_axis), with the watertight
+    tie rule of :func:`grid_line_hits`. Rays and triangles are joined through a cells x cells bucket
+    grid on the bounding square of the plane across ``axis`` (default cells = clip(sqrt(P / 8), 4,
+    128)); each triangle visits the cells its projection's bounding box overlaps (skipping a cell
+    outside one of its edge lines) and is tested against the rays of the cell's points, in a
+    compiled loop with the arithmetic of :func:`_line_triangle_test`. ``axis`` None (default): the
+    axis with the fewest candidate (triangle, point) pairs (:func:`_candidate_pairs`); off the
+    surface every axis gives the same numbers. Only valid for closed chains (see
+    :attr:`benchmark.fields.ExactFields.is_closed_chain`); a point exactly on the surface gets one
+    side, which may depend on the axis. Returns (P,) int64.
     """
     P = np.asarray(points, dtype=np.float64)
     if P.ndim != 2 or P.shape[1] != 3:
@@ -100,58 +141,83 @@ def closed_chain_winding_number(vertices, faces, points, cells: int | None = Non
         return w
     if cells is None:
         cells = int(np.clip(np.sqrt(len(P) / 8), 4, 128))
-    V2, tri2, area2, elo, ehi, edir, orient = _triangle_projection(vertices, faces, 0)
-    lo = np.minimum(V2.min(axis=0), P[:, 1:].min(axis=0))
-    size = max(float(np.max(np.maximum(V2.max(axis=0), P[:, 1:].max(axis=0)) - lo)), 1e-300) * (1 + 1e-9)
-    cell = size / cells
-    pc = np.clip(((P[:, 1:] - lo) / cell).astype(np.int64), 0, cells - 1)
-    pid = pc[:, 0] * cells + pc[:, 1]
-    order = np.argsort(pid, kind="stable")
-    start = np.searchsorted(pid[order], np.arange(cells * cells + 1))
-    per_cell = np.diff(start)
-    cmin = np.clip(((tri2.min(axis=1) - lo) / cell).astype(np.int64), 0, cells - 1)
-    cmax = np.clip(((tri2.max(axis=1) - lo) / cell).astype(np.int64), 0, cells - 1)
-    nc = cmax[:, 1] - cmin[:, 1] + 1
-    count = np.where(area2 != 0, (cmax[:, 0] - cmin[:, 0] + 1) * nc, 0)
-    live = np.flatnonzero(count)
+    if axis is None:
+        axis = int(np.argmin([_candidate_pairs(vertices, faces, P, cells, a) for a in range(3)]))
+    others = [a for a in range(3) if a != axis]
+    V2, tri2, area2, elo, ehi, edir, orient = _triangle_projection(vertices, faces, axis)
+    live = np.flatnonzero(area2 != 0)
     if len(live) == 0:
         return w
+    lo, cell, pid = _bucket_grid(V2, P[:, others], cells)
+    order = np.argsort(pid, kind="stable")
+    start = np.searchsorted(pid[order], np.arange(cells * cells + 1))
+    cmin, cmax = _triangle_cells(tri2, lo, cell, cells)
     # oriented 2D edge lines n . q + c >= 0 inside (for the conservative cell cover only)
     t0, t1, t2 = tri2[:, 0], tri2[:, 1], tri2[:, 2]
     edge_n = np.stack([np.stack([-(b - a)[:, 1], (b - a)[:, 0]], axis=1) for a, b in ((t0, t1), (t1, t2), (t2, t0))],
                       axis=1) * orient[:, None, None]  # (m, 3, 2)
     edge_c = -np.einsum("mij,mij->mi", edge_n, np.stack([t0, t1, t2], axis=1))
-    bounds = _batch_bounds(count[live])
-    for a, b in zip(bounds[:-1], bounds[1:]):
-        if b <= a:
-            continue
-        fl = live[a:b]
-        cnt = count[fl]
-        rep = np.repeat(fl, cnt)
-        local = np.arange(len(rep)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-        ci, cj = cmin[rep, 0] + local // nc[rep], cmin[rep, 1] + local % nc[rep]
-        cid = ci * cells + cj
-        keep = per_cell[cid] > 0
-        rep, ci, cj, cid = rep[keep], ci[keep], cj[keep], cid[keep]
-        # drop cells entirely outside one edge line (max of the linear edge function over the square)
-        n = edge_n[rep]  # (K, 3, 2)
-        corner = lo + cell * np.stack([ci, cj], axis=1)[:, None, :] + cell * (n > 0)  # maximising corner
-        slack = 1e-9 * cell * np.abs(n).sum(axis=2)
-        keep = ((n * corner).sum(axis=2) + edge_c[rep] >= -slack).all(axis=1)
-        rep, cid = rep[keep], cid[keep]
-        npair = per_cell[cid]
-        sub = _batch_bounds(npair)
-        for s0, s1 in zip(sub[:-1], sub[1:]):
-            if s1 <= s0:
-                continue
-            c = npair[s0:s1]
-            f = np.repeat(rep[s0:s1], c)
-            k = np.arange(len(f)) - np.repeat(np.cumsum(c) - c, c)
-            pts = order[start[np.repeat(cid[s0:s1], c)] + k]
-            ok, x = _line_triangle_test(vertices, faces, V2, f, P[pts, 1:], 0, "watertight", elo, ehi, edir, orient)
-            ok &= x < P[pts, 0]
-            np.add.at(w, pts[ok], -orient[f[ok]])  # n_x = area2 of the (y, z) projection
+    normal_sign = orient * (-1 if axis == 1 else 1)  # sign(n_axis): area2 for x, z; -area2 for y
+    sorted_w = np.zeros(len(P), dtype=np.int64)
+    _count_crossings(live, cmin, cmax, edge_n, np.ascontiguousarray(edge_c), lo, cell, cells, np.ascontiguousarray(V2),
+                     elo, ehi, edir * orient[:, None], normal_sign, np.ascontiguousarray(vertices[faces, axis]),
+                     np.ascontiguousarray(P[order][:, others]), np.ascontiguousarray(P[order, axis]), start, sorted_w)
+    w[order] = sorted_w
     return w
+
+
+@numba.njit(cache=True, nogil=True)
+def _count_crossings(live, cmin, cmax, edge_n, edge_c, lo, cell, cells, V2, elo, ehi, side, normal_sign, face_x,
+                     q, x_point, start, w):  # pragma: no cover - compiled
+    """For each triangle f of ``live``, each bucket cell c its bounding box overlaps and each point
+    k of the cell (rows ``start[c]:start[c + 1]`` of ``q``, the points' projections, sorted by
+    cell): subtract ``normal_sign[f]`` from ``w[k]`` where the ray from the point down the axis
+    crosses f. ``side`` is edir * orient; ``face_x`` the face's vertex coordinates along the axis.
+    The per-pair arithmetic is :func:`_line_triangle_test`'s (rule 'watertight') in the same
+    operation order, so the counts are the vectorised test's."""
+    for f in live:
+        for ci in range(cmin[f, 0], cmax[f, 0] + 1):
+            for cj in range(cmin[f, 1], cmax[f, 1] + 1):
+                cid = ci * cells + cj
+                if start[cid + 1] == start[cid]:
+                    continue
+                outside = False  # the cell lies outside one edge line (its maximum over the square < 0)
+                for i in range(3):
+                    n0, n1 = edge_n[f, i, 0], edge_n[f, i, 1]
+                    c0 = lo[0] + cell * ci + (cell if n0 > 0 else 0.0)
+                    c1 = lo[1] + cell * cj + (cell if n1 > 0 else 0.0)
+                    if n0 * c0 + n1 * c1 + edge_c[f, i] < -(1e-9 * cell * (abs(n0) + abs(n1))):
+                        outside = True
+                if outside:
+                    continue
+                # per edge: start point, direction, orientation and the tie rule (q + eps (1, eps))
+                a00, a01 = V2[elo[f, 0], 0], V2[elo[f, 0], 1]
+                a10, a11 = V2[elo[f, 1], 0], V2[elo[f, 1], 1]
+                a20, a21 = V2[elo[f, 2], 0], V2[elo[f, 2], 1]
+                e00, e01 = V2[ehi[f, 0], 0] - a00, V2[ehi[f, 0], 1] - a01
+                e10, e11 = V2[ehi[f, 1], 0] - a10, V2[ehi[f, 1], 1] - a11
+                e20, e21 = V2[ehi[f, 2], 0] - a20, V2[ehi[f, 2], 1] - a21
+                s0, s1, s2 = side[f, 0], side[f, 1], side[f, 2]
+                tie0 = s0 * (-np.sign(e01) if e01 != 0 else np.sign(e00)) > 0
+                tie1 = s1 * (-np.sign(e11) if e11 != 0 else np.sign(e10)) > 0
+                tie2 = s2 * (-np.sign(e21) if e21 != 0 else np.sign(e20)) > 0
+                for k in range(start[cid], start[cid + 1]):
+                    q0, q1 = q[k, 0], q[k, 1]
+                    E0 = s0 * (e00 * (q1 - a01) - e01 * (q0 - a00))
+                    if not (E0 > 0 or (E0 == 0 and tie0)):
+                        continue
+                    E1 = s1 * (e10 * (q1 - a11) - e11 * (q0 - a10))
+                    if not (E1 > 0 or (E1 == 0 and tie1)):
+                        continue
+                    E2 = s2 * (e20 * (q1 - a21) - e21 * (q0 - a20))
+                    if not (E2 > 0 or (E2 == 0 and tie2)):
+                        continue
+                    total = E0 + E1 + E2
+                    x = 0.0
+                    if total != 0:
+                        x = E0 / total * face_x[f, 2] + E1 / total * face_x[f, 0] + E2 / total * face_x[f, 1]
+                    if x < x_point[k]:
+                        w[k] -= normal_sign[f]
 
 
 def grid_line_hits(vertices: np.ndarray, faces: np.ndarray, N: int, axis: int, rule: str = "closed"):

@@ -69,9 +69,50 @@ def test_unit_cube_winding_numbers_with_rays_along_edges_and_diagonals():
                   [0, -0.5, 0],    # in the face plane y = -0.5: moved inside
                   [0, 0.5, 0],     # in the face plane y = 0.5: moved outside
                   [0, 0.3, -0.5]])  # in z = -0.5: moved inside (z + eps^2)
-    assert closed_chain_winding_number(V, F, P).tolist() == [1, 0, 0, 1, 0, 1, 0, 1]
+    assert closed_chain_winding_number(V, F, P, axis=0).tolist() == [1, 0, 0, 1, 0, 1, 0, 1]
     with pytest.raises(ValueError, match=r"shape \(P, 3\)"):
         closed_chain_winding_number(V, F, np.zeros((2, 2)))
+
+
+def test_every_ray_axis_gives_the_same_winding_numbers_off_the_surface():
+    """Two nested spheres, the inner one reversed, and a third one beside them: w = 1 in the shell
+    and in the third sphere, 0 in the hole and outside; each ray axis counts the same."""
+    outer = trimesh.creation.icosphere(subdivisions=3, radius=0.6)
+    inner = trimesh.creation.icosphere(subdivisions=2, radius=0.3)
+    inner.invert()
+    beside = trimesh.creation.icosphere(subdivisions=1, radius=0.2)
+    beside.apply_translation([0, 0.75, 0])
+    mesh = trimesh.util.concatenate([outer, inner, beside])
+    V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces, dtype=np.int64)
+    P = np.random.default_rng(1).uniform(-1, 1, (3000, 3))
+    r, rb = np.linalg.norm(P, axis=1), np.linalg.norm(P - [0, 0.75, 0], axis=1)
+    clear = (np.abs(r - 0.6) > 0.03) & (np.abs(r - 0.3) > 0.03) & (np.abs(rb - 0.2) > 0.03)
+    expected = ((r < 0.6) & (r > 0.3)) | (rb < 0.2)
+    per_axis = [closed_chain_winding_number(V, F, P, axis=a) for a in range(3)]
+    for w in per_axis:
+        assert np.array_equal(w[clear], expected[clear].astype(np.int64))
+        assert np.array_equal(w, per_axis[0])  # no point lies on the surface
+
+
+def test_default_ray_axis_has_the_fewest_candidate_pairs():
+    """A coin across x (radius 0.8, thickness 0.1): rays along x meet its two fan-triangulated caps,
+    whose thin triangles' bounding boxes hold many points each; along y or z the caps project to
+    segments (never hit) and the side strips are small. The default axis avoids x."""
+    coin = trimesh.creation.cylinder(radius=0.8, height=0.1, sections=64,
+                                     transform=trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0]))
+    V, F = np.asarray(coin.vertices), np.asarray(coin.faces, dtype=np.int64)
+    P = np.random.default_rng(1).uniform(-1, 1, (3000, 3))
+    pairs = [raster._candidate_pairs(V, F, P, 19, a) for a in range(3)]  # 19 cells: the default for 3,000 points
+    assert pairs[0] > 3 * max(pairs[1], pairs[2])
+    best = int(np.argmin(pairs))
+    assert best != 0
+    w = closed_chain_winding_number(V, F, P)
+    assert np.array_equal(w, closed_chain_winding_number(V, F, P, axis=best))
+    r = np.linalg.norm(P[:, 1:], axis=1)
+    clear = (r < 0.79) | (r > 0.8)  # the 64-gon lies between r = 0.799 and 0.8
+    inside = (np.abs(P[:, 0]) < 0.05) & (r < 0.79)
+    assert clear.sum() > 2900 and inside.sum() > 50
+    assert np.array_equal(w[clear], inside[clear].astype(np.int64))
 
 
 def test_results_do_not_depend_on_the_batch_size(monkeypatch):
