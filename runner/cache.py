@@ -61,22 +61,41 @@ def _is_module(name: str) -> bool:
     return spec is not None and bool(spec.origin) and spec.origin.endswith(".py")
 
 
-def _defines(path: Path, attribute: str) -> bool:
-    """True when a module's top level binds ``attribute`` (def, class, assignment or import)."""
-    for node in ast.parse(path.read_text(encoding="utf-8")).body:
-        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)) and node.name == attribute:
-            return True
+@lru_cache(maxsize=None)
+def _top_level_names(source: str) -> frozenset[str]:
+    """The names a module's top level binds (def, class, assignment or import), from its source."""
+    names = set()
+    for node in ast.parse(source).body:
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            names.add(node.name)
         if isinstance(node, (ast.Import, ast.ImportFrom)):
-            if any((a.asname or a.name.split(".")[0]) == attribute for a in node.names):
-                return True
+            names.update(a.asname or a.name.split(".")[0] for a in node.names)
         targets = list(node.targets) if isinstance(node, ast.Assign) else [getattr(node, "target", None)]
         while targets:
             t = targets.pop()
             if isinstance(t, (ast.Tuple, ast.List)):
                 targets.extend(t.elts)
-            elif isinstance(t, ast.Name) and t.id == attribute:
-                return True
-    return False
+            elif isinstance(t, ast.Name):
+                names.add(t.id)
+    return frozenset(names)
+
+
+def _defines(path: Path, attribute: str) -> bool:
+    """True when a module's top level binds ``attribute`` (def, class, assignment or import)."""
+    return attribute in _top_level_names(path.read_text(encoding="utf-8"))
+
+
+@lru_cache(maxsize=None)
+def _import_statements(source: str, filename: str) -> tuple[tuple[str, ...], tuple[tuple[int, str, str], ...]]:
+    """The modules of a source's ``import`` statements, and (level, module, name) per name of its
+    ``from`` statements (those inside functions included), as written."""
+    imports, froms = [], []
+    for node in ast.walk(ast.parse(source, filename=filename)):
+        if isinstance(node, ast.Import):
+            imports.extend(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            froms.extend((node.level, node.module or "", a.name) for a in node.names)
+    return tuple(imports), tuple(froms)
 
 
 def project_imports(name: str, path: Path, packages: tuple[str, ...] = PROJECT_PACKAGES) -> set[str]:
@@ -85,20 +104,16 @@ def project_imports(name: str, path: Path, packages: tuple[str, ...] = PROJECT_P
 
     ``import a.b`` and the ``a.b`` of ``from a.b import c`` must exist (else ModuleNotFoundError);
     ``a.b.c`` counts when ``c`` is a module rather than an attribute."""
-    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    imports, froms = _import_statements(path.read_text(encoding="utf-8"), str(path))
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
-    required: set[str] = set()
+    required: set[str] = set(imports)
     optional: set[tuple[str, str]] = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            required.update(a.name for a in node.names)
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                parts = package.split(".")
-                base = ".".join(parts[: len(parts) - node.level + 1] + ([base] if base else []))
-            required.add(base)
-            optional.update((base, a.name) for a in node.names)
+    for level, base, attribute in froms:
+        if level:
+            parts = package.split(".")
+            base = ".".join(parts[: len(parts) - level + 1] + ([base] if base else []))
+        required.add(base)
+        optional.add((base, attribute))
     required = {m for m in required if m.split(".")[0] in packages}
     for mod in required:
         if not _is_module(mod):
@@ -117,7 +132,12 @@ def project_imports(name: str, path: Path, packages: tuple[str, ...] = PROJECT_P
 def _computing_source(path: Path) -> bytes:
     """The module's syntax tree without docstrings, dumped: equal for two files whose code is equal
     whatever their comments, docstrings and formatting."""
-    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    return _code_without_docstrings(path.read_text(encoding="utf-8"), str(path))
+
+
+@lru_cache(maxsize=None)
+def _code_without_docstrings(source: str, filename: str) -> bytes:
+    tree = ast.parse(source, filename=filename)
     for node in ast.walk(tree):
         if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
             body = node.body
