@@ -170,6 +170,9 @@ def gallery_html(summary: Summary, meshes_dir: Path | None, colors: dict, limit:
     """One card per shape (the first ``limit``): ``meshes_dir/<shape>/gt.ply`` and ``<method>.ply``."""
     if meshes_dir is None or not Path(meshes_dir).is_dir():
         return '<p class="muted">No meshes directory: thumbnails are not available for this report.</p>'
+    if limit == 0:
+        return (f'<p class="muted">No thumbnails in this report (gallery limit 0); the meshes of its '
+                f'{len(summary.shapes)} shapes are in {esc(str(meshes_dir))}.</p>')
     shapes = summary.shapes[:limit]
     cards = []
     for shape in shapes:

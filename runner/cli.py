@@ -112,6 +112,7 @@ def build_parser() -> argparse.ArgumentParser:
     setting("no_cache", action="store_const", const=True)
     setting("plugins", action="append", metavar="MODULE")
     setting("quiet", action="store_const", const=True)
+    setting("gallery", metavar="N")
     setting("recompute_stale", action="store_const", const=True)
     return p
 

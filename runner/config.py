@@ -173,6 +173,9 @@ class RunConfig:
         "execution", (), "import MODULE (or MODULE:FUNCTION, then call it) first, in the driver and every worker, "
         "to register extra methods or datasets (repeatable)", item=str)
     quiet: bool = _setting("execution", False, "no progress bar; one line per finished job (CI logs)")
+    gallery: int | None = _setting(
+        "execution", None, "shapes with thumbnails in report.html's gallery (default 24; 0: none, the quickest "
+        "report: a thumbnail renders a mesh)", kind=int, ge=0)
     recompute_stale: bool = _setting(
         "execution", False, "in an existing run directory, recompute the finished tasks whose code changed since "
         "(without it such a run is refused: one directory never mixes two code versions)")

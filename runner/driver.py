@@ -143,7 +143,7 @@ def run(plan: Plan, run_dir: RunDirectory, record: dict, executor=None) -> RunOu
         display.close()
         executor.close()
         wall = time.perf_counter() - t0
-        export(run_dir.path, db=db, record=run_dir.read_record())
+        export(run_dir.path, db=db, record=run_dir.read_record(), gallery=config.gallery)
         ok = len({t.key for t in floors} & db.ok_hashes("floor")) + len({t.key for t in jobs} & db.ok_hashes("jobs"))
         db.close()
     print(f"salsbench: {ok} ok, {total - ok} failed ({len(todo)} run now, {skipped} done before) in {wall:.1f} s; "

@@ -76,8 +76,10 @@ def report_context(record: dict[str, Any]) -> dict[str, Any]:
 
 
 def export(run_dir: str | Path, db=None, record: dict[str, Any] | None = None,
-           out_dir: str | Path | None = None) -> dict[str, Any]:
+           out_dir: str | Path | None = None, gallery: int | None = None) -> dict[str, Any]:
     """Write results.csv, floor.csv and the reports of a run directory; returns what was written.
+
+    ``gallery``: shapes with thumbnails in report.html (None: the report's default).
 
     A failure while writing the reports is reported on stderr and never loses results.csv.
     """
@@ -108,8 +110,9 @@ def export(run_dir: str | Path, db=None, record: dict[str, Any] | None = None,
         components.to_csv(out_dir / "components.csv", index=False, float_format="%.9g")
         written["components"] = out_dir / "components.csv"
     try:
+        gallery_limit = {} if gallery is None else {"gallery_limit": gallery}
         written["reports"] = reports.write_reports(results, floor, report_context(record), out_dir, run_dir / "meshes",
-                                                   checkpoints=checkpoints if len(checkpoints) else None,
+                                                   **gallery_limit, checkpoints=checkpoints if len(checkpoints) else None,
                                                    components=components if len(components) else None)
     except Exception as exc:  # noqa: BLE001 -- the results are safe in results.db / results.csv
         print(f"salsbench: writing reports failed: {one_line(exc)}", file=sys.stderr)

@@ -155,7 +155,7 @@ def run_tier(tier: Tier, data_dir: Path, out_dir: Path, workers: int, python: st
         cmd = [
             python, str(REPO / "run_benchmark.py"), "--methods", *(methods or tier_methods(tier)), "--dataset", dataset,
             "--data-dir", str(data_dir), "--list", str(BASELINES / list_file), "--out", str(run_dir),
-            "--quiet", *_executor_args(workers), "--threads", "1",
+            "--quiet", "--gallery", "0", *_executor_args(workers), "--threads", "1",
             *tier.run_args, *extra_args,
         ]
         print("$ " + " ".join(cmd), flush=True)

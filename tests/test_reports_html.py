@@ -210,6 +210,8 @@ def test_missing_meshes_dir_and_unreadable_mesh(tmp_path):
     (meshes / "sphere" / "gt.ply").unlink()
     page = reports.write_reports(results, floor, CONTEXT, tmp_path / "b", meshes, gallery_limit=2)["report.html"].read_text()
     assert "render failed" in page and "no GT mesh" in page and "Showing the first 2 of 3 shapes" in page
+    page = reports.write_reports(results, floor, CONTEXT, tmp_path / "c", meshes, gallery_limit=0)["report.html"].read_text()
+    assert "image/png" not in page and "No thumbnails in this report (gallery limit 0)" in page  # plots stay
 
 
 def test_compare_runs_writes_every_file(tmp_path):

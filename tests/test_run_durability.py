@@ -28,7 +28,7 @@ def _run(args, cache, **kw):
 def test_kill9_resume_twice_then_a_changed_flag_is_refused(tmp_path):
     cache = tmp_path / "cache"
     args = ["--methods", "test_sdf", "test_occ", "--mode", "oracle", "--grid", "24", "--eval-points", "5000",
-            "--seed", "0", "1", "2", "--no-cache", "--plugin", PLUGIN, "--quiet", "--executor", "local"]
+            "--seed", "0", "1", "2", "--no-cache", "--plugin", PLUGIN, "--quiet", "--executor", "local", "--gallery", "0"]
     killed = tmp_path / "killed"
     kill_after_ok_jobs(args, killed, {**os.environ, "SALSBENCH_CACHE": str(cache)})
     db = killed / "results.db"
