@@ -137,6 +137,12 @@ class Method:
             return np.ascontiguousarray(samples.points, dtype=np.float32)
         return np.ascontiguousarray(samples.segments.reshape(len(samples), 6), dtype=np.float32)
 
+    def network_config(self, budget) -> dict:
+        """Keyword arguments of :func:`methods.network.make_network` for the network this method fits
+        under ``budget`` (a :class:`methods.fitting.Budget`); default: the budget's backbone,
+        ``budget.network_config()``. A method with a network of its own (e.g. NGLOD's) returns it."""
+        return budget.network_config()
+
     def training_targets(self, fields, samples) -> dict[str, np.ndarray]:
         """Labels for every sample from the exact fields (``benchmark.fields.ExactFields``)."""
         raise NotImplementedError

@@ -1,7 +1,8 @@
 """One fitting loop for every method, with budgets as data.
 
 The loop: network ``methods.network.make_network(method.input_dim, method.output_dim,
-**budget.network_config())`` (the budget's backbone: ``'mlp'`` or ``'grid'``); AdamW with one
+**method.network_config(budget))`` (the budget's backbone, ``'mlp'`` or ``'grid'``, unless the method
+has its own network); AdamW with one
 parameter group per kind of weight (:func:`parameter_groups`): the MLP's weights (lr, weight
 decay) and, for the grid backbone, the feature grid (lr_grid, no weight decay); cosine decay of
 each group's learning rate from its start to its end value over ``iterations`` steps (MLP:
@@ -36,7 +37,7 @@ import torch
 from benchmark.params import Param, check_fields, params_of, setting, with_overrides
 from benchmark.registry import Registry
 from methods.device import get_device, seeded_generator
-from methods.network import BACKBONES, GridNetwork, make_network
+from methods.network import BACKBONES, FeatureGrid, make_network
 from methods.training_loop import FittingError, run_steps
 
 
@@ -189,17 +190,19 @@ def check_not_constant(model: torch.nn.Module, inputs: torch.Tensor, where: str)
 def parameter_groups(model: torch.nn.Module, budget: Budget) -> list[dict]:
     """AdamW parameter groups of ``model`` under ``budget``, each with its schedule's end points.
 
-    The MLP weights (all of an MLP; the head of a :class:`methods.network.GridNetwork`): ``lr`` ->
-    ``lr_final``, the optimizer's weight decay. The feature grid, if any: ``lr_grid`` ->
-    ``lr_grid_final``, weight decay 0. ``lr_start``/``lr_end`` are read by :func:`fit` each step.
+    The MLP weights (all of an MLP; the head of a :class:`methods.network.GridNetwork`, the decoders
+    of a :class:`methods.network.LODNetwork`): ``lr`` -> ``lr_final``, the optimizer's weight decay.
+    The feature grid (the network's ``encoder``), if any: ``lr_grid`` ->
+    ``lr_grid_final`` (``lr`` -> ``lr_final`` under a budget without a grid), weight decay 0. ``lr_start``/``lr_end`` are read by :func:`fit` each step.
     """
-    grid = list(model.encoder.parameters()) if isinstance(model, GridNetwork) else []
+    encoder = getattr(model, "encoder", None)
+    grid = list(encoder.parameters()) if isinstance(encoder, FeatureGrid) else []
     in_grid = {id(p) for p in grid}
     groups = [{"params": [p for p in model.parameters() if id(p) not in in_grid],
                "lr_start": budget.lr, "lr_end": budget.lr_final}]
-    if grid:
-        groups.append({"params": grid, "lr": budget.lr_grid, "weight_decay": 0.0,
-                       "lr_start": budget.lr_grid, "lr_end": budget.lr_grid_final})
+    if grid:  # a method's own grid under an MLP budget (no grid rates) trains at the MLP's rates
+        start, end = (budget.lr_grid, budget.lr_grid_final) if budget.backbone == "grid" else (budget.lr, budget.lr_final)
+        groups.append({"params": grid, "lr": start, "weight_decay": 0.0, "lr_start": start, "lr_end": end})
     return groups
 
 
@@ -259,7 +262,7 @@ def fit(method, samples, targets: dict, budget: str | Budget, seed: int = 0, dev
     if M == 0:
         raise FittingError("no training samples")
     generator = seeded_generator(seed, device)
-    model = make_network(method.input_dim, method.output_dim, **budget.network_config()).to(device)
+    model = make_network(method.input_dim, method.output_dim, **method.network_config(budget)).to(device)
     optimizer = make_optimizer(model, budget)
     T, B = int(budget.iterations), int(budget.batch_size)
     warmup = round(budget.warmup_fraction * T)

@@ -296,8 +296,59 @@ class GridNetwork(nn.Module):
         return codes
 
 
+class LODNetwork(nn.Module):
+    """The ``'nglod'`` backbone: NGLOD's network (Takikawa et al., CVPR 2021; its dense training
+    form, ``OctreeSDF``): one output per level of detail.
+
+    Level l of a :class:`FeatureGrid` (``grid_resolutions[l]`` points per axis, ``grid_channels``
+    features, initialised normal with std :data:`LOD_INIT_STD` as NGLOD's feature volumes) is
+    interpolated at x; the features are summed over the levels up to l (z_l = sum_{i <= l} f_i(x)),
+    and LOD l's own decoder, ``Linear(3 + C, width) -> ReLU -> Linear(width, 1)`` on ``[x, z_l]``,
+    gives output l. Inputs (B, 3) -> outputs (B, L): column l is LOD l's field, the last column the
+    finest. The decoders' weights are stacked per level (one batched product for all levels) and
+    initialised as ``nn.Linear``'s default.
+    """
+
+    def __init__(self, in_dim: int, out_dim: int, width: int, grid_resolutions: Sequence[int], grid_channels: int):
+        super().__init__()
+        if in_dim != 3:
+            raise ValueError(f"the nglod backbone takes points (in_dim 3), got in_dim {in_dim}")
+        self.encoder = FeatureGrid(grid_resolutions, grid_channels)
+        levels, C = len(self.encoder.resolutions), self.encoder.channels
+        if out_dim != levels:
+            raise ValueError(f"the nglod backbone has one output per level: out_dim {out_dim} for {levels} levels")
+        with torch.no_grad():
+            for level in self.encoder.levels:
+                level.normal_(0.0, LOD_INIT_STD)
+        self.hidden_weight = nn.Parameter(_linear_init((levels, 3 + C, width), 3 + C))
+        self.hidden_bias = nn.Parameter(_linear_init((levels, 1, width), 3 + C))
+        self.output_weight = nn.Parameter(_linear_init((levels, width, 1), width))
+        self.output_bias = nn.Parameter(_linear_init((levels, 1, 1), width))
+        self.config = dict(backbone="nglod", in_dim=3, out_dim=int(out_dim), width=int(width),
+                           grid_resolutions=self.encoder.resolutions, grid_channels=C)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        levels, C = len(self.encoder.resolutions), self.encoder.channels
+        summed = self.encoder(x).reshape(-1, levels, C).cumsum(dim=1)  # (B, L, C): z_l
+        inputs = torch.cat([x.unsqueeze(0).expand(levels, -1, -1), summed.transpose(0, 1)], dim=2)  # (L, B, 3 + C)
+        hidden = torch.relu(torch.baddbmm(self.hidden_bias, inputs, self.hidden_weight))
+        return torch.baddbmm(self.output_bias, hidden, self.output_weight)[..., 0].transpose(0, 1)
+
+
+#: Standard deviation of the initial NGLOD feature volumes (its ``randn * 0.01``).
+LOD_INIT_STD = 0.01
+
+
+def _linear_init(shape: tuple[int, ...], fan_in: int) -> torch.Tensor:
+    """Uniform in +-1/sqrt(fan_in): ``nn.Linear``'s default for its weights and biases."""
+    bound = 1.0 / fan_in ** 0.5
+    return torch.empty(shape).uniform_(-bound, bound)
+
+
 #: Backbone names (the budget's ``backbone``).
 BACKBONES = ("mlp", "grid")
+#: Every network :func:`make_network` builds: the backbones and the networks of single methods.
+NETWORKS = BACKBONES + ("nglod",)
 
 
 class EndpointSplit(NamedTuple):
@@ -413,20 +464,23 @@ def make_network(in_dim: int, out_dim: int, depth: int = 9, width: int = 512, be
     ----------
     in_dim, out_dim : input size (3: points, 6: segments) and output size.
     depth, width, beta, activation : the MLP (``'mlp'``) or the grid backbone's head (``'grid'``).
-    backbone : ``'mlp'`` (:class:`MLP`) or ``'grid'`` (:class:`GridNetwork`).
-    grid_resolutions, grid_channels : the :class:`FeatureGrid` (``'grid'`` only; required there,
-        refused for ``'mlp'``).
+    backbone : ``'mlp'`` (:class:`MLP`), ``'grid'`` (:class:`GridNetwork`) or ``'nglod'``
+        (:class:`LODNetwork`: ``width`` its decoders' hidden width; depth, beta and activation unused).
+    grid_resolutions, grid_channels : the :class:`FeatureGrid` (``'grid'`` and ``'nglod'``; required
+        there, refused for ``'mlp'``).
 
     ``make_network(**model.config)`` rebuilds any network made here (a config without ``backbone``,
     as every MLP's, is an MLP).
     """
-    if backbone not in BACKBONES:
-        raise ValueError(f"unknown backbone '{backbone}'; known: {', '.join(BACKBONES)}")
+    if backbone not in NETWORKS:
+        raise ValueError(f"unknown backbone '{backbone}'; known: {', '.join(NETWORKS)}")
     grid_given = grid_resolutions is not None or grid_channels is not None
     if backbone == "mlp":
         if grid_given:
             raise ValueError("grid_resolutions/grid_channels are settings of the 'grid' backbone, not of 'mlp'")
         return MLP(in_dim, out_dim, depth=depth, width=width, beta=beta, activation=activation)
     if grid_resolutions is None or grid_channels is None:
-        raise ValueError("the 'grid' backbone needs grid_resolutions and grid_channels")
+        raise ValueError(f"the '{backbone}' backbone needs grid_resolutions and grid_channels")
+    if backbone == "nglod":
+        return LODNetwork(in_dim, out_dim, width, grid_resolutions, grid_channels)
     return GridNetwork(in_dim, out_dim, depth, width, beta, activation, grid_resolutions, grid_channels)

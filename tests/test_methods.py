@@ -46,7 +46,7 @@ def test_registry_has_the_four_methods_and_lists_them_on_unknown_names():
     with pytest.raises(ValueError, match="unknown method 'nerf'; known methods: ") as err:
         get_method("nerf")
     listed = str(err.value).split("known methods: ")[1].split(", ")
-    assert listed[:6] == ["bof", "sdf", "sdf-ndc", "udf", "udf-dualmesh", "sals"]  # display order, from each method's metadata
+    assert listed[:6] == ["bof", "sdf", "sdf-ndc", "nglod", "udf", "udf-dualmesh"]  # display order, from each method's metadata
     with pytest.raises(ValueError, match="no parameter"):
         get_method("sals", thresold=0.2)
     assert get_method("sals", o_threshold=0.2).params["o_threshold"] == 0.2
