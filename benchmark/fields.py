@@ -20,6 +20,10 @@ Definitions (p a point, M the mesh)
 * segment field of (u, v): first hit of the ray u + t (v - u), 0 <= t <= 1 (so tau = t in units of
   |v - u|); o = hit, s = 1 - tau (hit point s u + (1 - s) v), normal = unit normal of the hit
   triangle (sign irrelevant). Zero-length segments miss.
+* orthogonal distances (UODF) of p: for each axis a, the distance along the line p + t e_a to the
+  nearest surface point on it in either direction, min(t+, t-) (t+ the first hit of the ray
+  towards +e_a, t- towards -e_a), +inf where the line hits nothing; and the side of that hit (+1
+  towards +e_a, -1 towards -e_a, ties -1, 0 for no hit).
 
 Grid conventions (benchmark.grid)
 --------------------------------
@@ -32,6 +36,9 @@ Grid conventions (benchmark.grid)
   1e-9 h) belongs to both edges sharing that point (tau = 1 on the lower edge, tau = 0 on the upper).
   Per edge the hit with the smallest tau is kept; ties (hits within 1e-9 in tau, e.g. the two
   triangles of a shared mesh edge) go to the smallest face index. Duplicates therefore never matter.
+* Grid orthogonal distances (:meth:`ExactFields.grid_orthogonal_distances`): the grid points lie on
+  the grid lines, so the hits along axis a are those of :func:`benchmark.raster.grid_line_hits`
+  (rule 'closed'), exact in float64; a hit within 1e-10 of a grid point may count as the other side.
 * Grid occupancy / SDF sign: for a *closed chain* (every undirected edge, after welding exactly equal
   positions, is used equally often in both directions: closed meshes and soups of closed meshes,
   even self-intersecting) w is an integer and is counted exactly along the x grid lines: w(p) = sum
@@ -290,6 +297,30 @@ class ExactFields:
             normal[sel] = self.face_normals[prim[ok]].astype(np.float32)
         return hit, s, normal
 
+    def orthogonal_distances(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Orthogonal distances (UODF, module docstring) at arbitrary points (embree, float32 rays).
+
+        Six ray casts per point (+-e_x, +-e_y, +-e_z, from the point, unbounded). Returns (distance
+        (P, 3) float64, +inf where the axis line hits nothing; side (P, 3) int8: +1 if the nearest
+        hit lies towards +e_a, -1 towards -e_a (also on ties), 0 for no hit).
+        """
+        P = _as_points(points)
+        forward = np.full((len(P), 3), np.inf)
+        backward = np.full((len(P), 3), np.inf)
+        scene = self._embree_scene()
+        origins = P.astype(np.float32)
+        step = 4 * CHUNK
+        for axis in range(3):
+            for sign, out in ((1.0, forward), (-1.0, backward)):
+                direction = np.zeros((len(P), 3), dtype=np.float32)
+                direction[:, axis] = sign
+                for i in range(0, len(P), step):
+                    res = scene.run(np.ascontiguousarray(origins[i:i + step]),
+                                    np.ascontiguousarray(direction[i:i + step]), output=1)
+                    hit = res["primID"] >= 0
+                    out[i:i + step, axis] = np.where(hit, res["tfar"], np.inf)
+        return _nearest_side(forward, backward)
+
     # ------------------------------------------------------------------ grid fields
     def grid_edges(self, N: int) -> EdgeField:
         """Segment field of all 3 (N - 1) N^2 grid edges (flat edge order of benchmark.grid).
@@ -336,6 +367,22 @@ class ExactFields:
             s[eid] = (1.0 - tau).astype(np.float32)
             normal[eid] = self.face_normals[f].astype(np.float32)
         return EdgeField(N=N, hit=hit, s=s, normal=normal)
+
+    def grid_orthogonal_distances(self, N: int) -> tuple[np.ndarray, np.ndarray]:
+        """Orthogonal distances (UODF) on the grid points, exact (module docstring).
+
+        Returns (distance (N, N, N, 3) float64, +inf where the grid line hits nothing; side
+        (N, N, N, 3) int8 as in :meth:`orthogonal_distances`), 'ij' order, last axis the axis a.
+        """
+        forward = np.full((N, N, N, 3), np.inf)
+        backward = np.full((N, N, N, 3), np.inf)
+        Vw, Fw = self._welded()
+        for axis in range(3):
+            j, k, x, _, _ = grid_line_hits(Vw, Fw, N, axis, rule="closed")
+            fwd, bwd = _nearest_hits_on_lines(j * N + k, x, N)  # (N^2 lines (j, k), N points along axis)
+            forward[..., axis] = np.moveaxis(fwd.reshape(N, N, N), 2, axis)
+            backward[..., axis] = np.moveaxis(bwd.reshape(N, N, N), 2, axis)
+        return _nearest_side(forward, backward)
 
     def grid_winding_number(self, N: int) -> np.ndarray:
         """Winding number on the grid points, (N, N, N) float64 ('ij' order).
@@ -420,3 +467,39 @@ def _grid_slabs(N: int):
     for i0 in range(0, N, step):
         i1 = min(N, i0 + step)
         yield i0, i1, np.stack(np.meshgrid(c[i0:i1], c, c, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+def _nearest_side(forward: np.ndarray, backward: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(min(forward, backward), side: +1 where forward < backward, -1 where backward <= forward and
+    finite, 0 where both are +inf), from the distances to the first hit each way along each axis."""
+    side = np.where(forward < backward, 1, np.where(np.isfinite(backward), -1, 0)).astype(np.int8)
+    return np.minimum(forward, backward), side
+
+
+def _nearest_hits_on_lines(line: np.ndarray, x: np.ndarray, N: int) -> tuple[np.ndarray, np.ndarray]:
+    """Distances from the N grid points of each of N^2 lines to the nearest hit on it each way.
+
+    ``line`` (H,) line ids, ``x`` (H,) hit coordinates along the lines. Returns (forward, backward),
+    each (N^2, N) float64: x_hit - c for the first hit with x_hit >= c, c - x_hit for the last
+    with x_hit <= c (c the point's coordinate, :func:`benchmark.grid.axis_coords`), +inf if none.
+    Points and hits are ordered together by the key line * span + x (span > the range of x).
+    """
+    coords = axis_coords(N)
+    forward = np.full((N * N, N), np.inf)
+    backward = np.full((N * N, N), np.inf)
+    if len(x) == 0:
+        return forward, backward
+    span = 2.0 * (max(np.abs(x).max(), 1.0) + 1.0)
+    order = np.lexsort((x, line))
+    line, x = line[order], x[order]
+    hit_key = line * span + x
+    point_line = np.repeat(np.arange(N * N), N)
+    point_c = np.tile(coords, N * N)
+    point_key = point_line * span + point_c
+    after = np.searchsorted(hit_key, point_key, side="left")
+    before = np.searchsorted(hit_key, point_key, side="right") - 1
+    ok_after = (after < len(x)) & (line[np.minimum(after, len(x) - 1)] == point_line)
+    ok_before = (before >= 0) & (line[np.maximum(before, 0)] == point_line)
+    forward.reshape(-1)[ok_after] = np.maximum(x[after[ok_after]] - point_c[ok_after], 0.0)
+    backward.reshape(-1)[ok_before] = np.maximum(point_c[ok_before] - x[before[ok_before]], 0.0)
+    return forward, backward
