@@ -12,7 +12,10 @@ benchmark.grid. Compares, at N = 64 and 128:
   and its gradient at its samples; ``main`` reports its time without those queries and the queries
   apart (in a run they are the network's, part of the extraction),
 * NDC (:mod:`methods.ndc`: its CNN on the cells that change sign, then dual contouring) on the SDF
-  grid, where NDC's published weights are found.
+  grid, where NDC's published weights are found,
+* DCUDF (:func:`methods.dcudf.dcudf_extract`) on the UDF grid, the authors' r, the ``udf-dcudf``
+  method's default iterations, the analytic UDF and its gradient at the moving vertices; one round
+  (its optimisation takes seconds to minutes), ``main`` reports it once per N with the queries apart.
 
 Run: ``.venv/bin/pytest benchmarks/bench_extractors.py --benchmark-enable``. The machines are shared
 and noisy, so the numbers to read are the ratios to marching cubes measured side by side:
@@ -30,9 +33,11 @@ from skimage.measure import marching_cubes
 
 from benchmark.grid import edge_endpoint_values, edge_endpoints, grid_points, spacing
 from methods.edc import edc_extract
+from methods.dcudf import authors_r, dcudf_extract
 from methods.dualmesh import dualmesh_extract
 from methods.meshudf import meshudf_extract
 from methods.base import METHODS, get_method
+from methods.udf_dcudf import CPU_ITERATIONS
 
 
 def _box_sdf(p, lo, hi):
@@ -112,9 +117,8 @@ def heat_sink_udf_grad(points):
     return np.abs(d), np.sign(d)[:, None] * sdf_gradient(points)
 
 
-def dualmesh_on_heat_sink(udf: np.ndarray, query_seconds: list | None = None):
-    """DualMesh-UDF on the heat sink; the seconds spent in the analytic field's queries are appended
-    to ``query_seconds`` when given (they stand for a network's queries in a run)."""
+def _timed(query_seconds: list | None):
+    """A wrapper of field queries that appends each call's seconds to ``query_seconds`` (if given)."""
     def timed(fn):
         def call(points):
             t = time.perf_counter()
@@ -124,6 +128,13 @@ def dualmesh_on_heat_sink(udf: np.ndarray, query_seconds: list | None = None):
             return out
         return call
 
+    return timed
+
+
+def dualmesh_on_heat_sink(udf: np.ndarray, query_seconds: list | None = None):
+    """DualMesh-UDF on the heat sink; the seconds spent in the analytic field's queries are appended
+    to ``query_seconds`` when given (they stand for a network's queries in a run)."""
+    timed = _timed(query_seconds)
     return dualmesh_extract(udf, timed(heat_sink_udf_grad), timed(lambda p: np.abs(heat_sink_sdf(p))))
 
 
@@ -143,6 +154,21 @@ def test_ndc(benchmark, N):
         pytest.skip(METHODS.get("sdf-ndc").unavailable())
     extraction = benchmark(NDC.extract, fields(N)[0], N)
     assert len(extraction.faces) > 0
+
+
+def dcudf_on_heat_sink(udf: np.ndarray, query_seconds: list | None = None):
+    """DCUDF on the heat sink (the authors' r at this N, :data:`CPU_ITERATIONS` iterations); the
+    analytic field's query seconds are appended to ``query_seconds`` when given."""
+    N, timed = udf.shape[0], _timed(query_seconds)
+    return dcudf_extract(udf, timed(heat_sink_udf_grad), timed(lambda p: np.abs(heat_sink_sdf(p))),
+                         r=authors_r(N), iterations=CPU_ITERATIONS)
+
+
+@pytest.mark.parametrize("N", RESOLUTIONS)
+def test_dcudf(benchmark, N):
+    verts, faces, facts = benchmark.pedantic(dcudf_on_heat_sink, args=(fields(N)[1],), rounds=1, iterations=1)
+    benchmark.extra_info.update(facts)
+    assert len(faces) > 0
 
 
 def _median_time(fn, repeats):
@@ -178,6 +204,10 @@ def main(repeats: int = 15):
                 f"DualMesh/E-DC {np.median(dm) / edc:.2f}; the analytic field's queries {np.median(dm_queries) * 1e3:.0f} ms)"
               + (f" | NDC {np.median(nd) * 1e3:.1f} ms (ratio {np.median(nd) / mc:.2f}, NDC/E-DC "
                  f"{np.median(nd) / edc:.2f})" if nd else " | NDC: weights absent"))
+        queries = []
+        dc = _median_time(lambda: dcudf_on_heat_sink(udf, queries), 1)
+        print(f"  DCUDF ({CPU_ITERATIONS} iterations, one run) {(dc - sum(queries)):.1f} s without its field queries "
+              f"(ratio to MC {(dc - sum(queries)) / mc:.0f}; the analytic field's queries {sum(queries):.1f} s)")
 
 
 if __name__ == "__main__":
