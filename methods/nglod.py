@@ -15,9 +15,9 @@ is the finest LOD's column, by the sparse query with ``sdf``'s criterion on that
 
 from __future__ import annotations
 
+from benchmark.params import Param
 from methods import query
 from methods.base import register_method
-from benchmark.params import Param
 from methods.sdf import SDFMethod
 
 

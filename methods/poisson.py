@@ -65,7 +65,12 @@ class PoissonMethod(PointCloudMethod):
 def trim_by_density(vertices: np.ndarray, faces: np.ndarray, density: np.ndarray, threshold: float):
     """Remove the vertices whose density lies below ``threshold``, with every face using one;
     returns (vertices, faces reindexed, vertices removed)."""
-    keep = density >= threshold
+    return keep_vertices(vertices, faces, density >= threshold)
+
+
+def keep_vertices(vertices: np.ndarray, faces: np.ndarray, keep: np.ndarray):
+    """The mesh of the vertices where ``keep`` (n,) holds and the faces using only those; returns
+    (vertices, faces reindexed, vertices removed)."""
     index = np.cumsum(keep) - 1
     faces = faces[keep[faces].all(axis=1)]
     return vertices[keep], index[faces], int((~keep).sum())

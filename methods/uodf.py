@@ -44,6 +44,7 @@ from benchmark.timing import stage
 from methods import query
 from methods.base import Extraction, Method, register_method
 from methods.network import value_and_input_gradient
+from methods.poisson import keep_vertices, poisson_depth
 
 #: Distance a target or exact grid field holds where the axis line hits nothing (the cube's side).
 TRUNCATION = 2.0
@@ -164,11 +165,6 @@ def remove_outliers(per_axis: list[np.ndarray], h: float) -> tuple[np.ndarray, i
     return out, total - len(out)
 
 
-def poisson_depth(N: int) -> int:
-    """The octree depth of the Poisson step: round(log2 N) (the authors' 8 at their 257^3 grid)."""
-    return max(1, int(round(np.log2(max(2, int(N))))))
-
-
 def poisson_mesh(points: np.ndarray, depth: int, normal_k: int = 10) -> tuple[np.ndarray, np.ndarray]:
     """Screened Poisson (pymeshlab) of ``points`` with PCA normals, the authors' MeshLab settings."""
     from methods.meshlab import current_mesh, oriented_point_set
@@ -187,9 +183,7 @@ def trim_far_vertices(V: np.ndarray, F: np.ndarray, points: np.ndarray, limit: f
     using one; returns (vertices, faces reindexed, vertices removed)."""
     from scipy.spatial import cKDTree
 
-    keep = cKDTree(points).query(V)[0] <= limit
-    index = np.cumsum(keep) - 1
-    return V[keep], index[F[keep[F].all(axis=1)]], int((~keep).sum())
+    return keep_vertices(V, F, cKDTree(points).query(V)[0] <= limit)
 
 
 # ------------------------------------------------------------------------------------------------
