@@ -409,27 +409,38 @@ def endpoint_split(model: nn.Module) -> EndpointSplit | None:
 
 def value_and_input_gradient(model: nn.Module, x: torch.Tensor, output_index: int = 0,
                               create_graph: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
-    """A network's outputs and the gradient of one output with respect to its input.
+    """A network's outputs and the gradient of one output with respect to its input:
+    ``(model(x) (B, out_dim), d model(x)[:, output_index] / dx (B, in_dim))``.
+    :func:`value_and_input_gradients` of the one output."""
+    out, grads = value_and_input_gradients(model, x, (output_index,), create_graph)
+    return out, grads[0]
+
+
+def value_and_input_gradients(model: nn.Module, x: torch.Tensor, output_indices: Sequence[int],
+                               create_graph: bool = True) -> tuple[torch.Tensor, list[torch.Tensor]]:
+    """A network's outputs and the gradients of some of its outputs with respect to its input, from
+    one evaluation of the network.
 
     Parameters
     ----------
     model : a network taking (B, in_dim) inputs (points, segments, ...).
     x : (B, in_dim) inputs (their own ``requires_grad`` is not used).
-    output_index : the output whose gradient is returned.
-    create_graph : keep the gradient differentiable in the weights (a loss on it, as UDF's).
+    output_indices : the outputs whose gradients are returned, in this order.
+    create_graph : keep the gradients differentiable in the weights (a loss on them, as UDF's).
 
     Returns
     -------
-    ``(model(x) (B, out_dim), d model(x)[:, output_index] / dx (B, in_dim))``.
+    ``(model(x) (B, out_dim), [d model(x)[:, i] / dx (B, in_dim) for i in output_indices])``.
 
     A :class:`GridNetwork` on the CPU in float32 takes the grid's derivative from
     :func:`methods.grid_lookup.lookup_with_jacobian` (the features and their Jacobian in one pass,
     linear in the grid values) and autograd's only through the head, by the chain rule: for each
     point p of the input, ``d f / dp = (d f / d enc(p)) (d enc(p) / dp) + d f / d[raw p]`` (a
     segment's offset ``(v - u) / SEGMENT_SCALE`` adds its block to v's and subtracts it from u's),
-    without the second-order autograd graph of the grid lookup. Any other network is differentiated
-    by autograd. The two agree to float32 rounding.
+    without the second-order autograd graph of the grid lookup; the one lookup serves every output.
+    Any other network is differentiated by autograd. The two agree to float32 rounding.
     """
+    last = len(output_indices) - 1
     if isinstance(model, GridNetwork):
         levels = list(model.encoder.levels)
         points = x.reshape(-1, 3)
@@ -439,20 +450,26 @@ def value_and_input_gradient(model: nn.Module, x: torch.Tensor, output_index: in
             if not head_in.requires_grad:
                 head_in.requires_grad_(True)
             out = model.head(head_in)
-            (d_in,) = torch.autograd.grad(out[:, output_index].sum(), head_in, create_graph=create_graph)
             if not create_graph:
                 jacobian = jacobian.detach()
             n, k = features.shape[1], model.k
-            d_points = d_in[:, :k * (n + 3)].reshape(-1, n + 3)  # (B k, L C + 3): per point, its code and p
-            grad = (torch.bmm(d_points[:, None, :n], jacobian)[:, 0] + d_points[:, n:]).reshape(x.shape)
-            if k == 2:
-                d_offset = d_in[:, k * (n + 3):] / SEGMENT_SCALE
-                grad = grad + torch.cat([-d_offset, d_offset], dim=1)
-            return out, grad
+            grads = []
+            for j, index in enumerate(output_indices):
+                (d_in,) = torch.autograd.grad(out[:, index].sum(), head_in, create_graph=create_graph,
+                                              retain_graph=create_graph or j < last)
+                d_points = d_in[:, :k * (n + 3)].reshape(-1, n + 3)  # (B k, L C + 3): per point, its code and p
+                grad = (torch.bmm(d_points[:, None, :n], jacobian)[:, 0] + d_points[:, n:]).reshape(x.shape)
+                if k == 2:
+                    d_offset = d_in[:, k * (n + 3):] / SEGMENT_SCALE
+                    grad = grad + torch.cat([-d_offset, d_offset], dim=1)
+                grads.append(grad)
+            return out, grads
     x = x.detach().requires_grad_(True)
     out = model(x)
-    (grad,) = torch.autograd.grad(out[:, output_index].sum(), x, create_graph=create_graph)
-    return out, grad
+    grads = [torch.autograd.grad(out[:, index].sum(), x, create_graph=create_graph,
+                                 retain_graph=create_graph or j < last)[0]
+             for j, index in enumerate(output_indices)]
+    return out, grads
 
 
 def make_network(in_dim: int, out_dim: int, depth: int = 9, width: int = 512, beta: float = 100.0,

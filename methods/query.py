@@ -42,7 +42,7 @@ from scipy.ndimage import binary_dilation
 
 from benchmark.grid import LOWER, edge_endpoint_values, edge_endpoints, edge_index_to_ijk_axis, num_edges, spacing
 from methods.device import flush_denormals, get_device, synchronize
-from methods.network import endpoint_split, value_and_input_gradient
+from methods.network import endpoint_split, value_and_input_gradients
 
 #: Rows per forward pass (ENVIRONMENT.md: 16k-65k chunks are much faster than 1M on the CPU).
 DEFAULT_CHUNK = 32768
@@ -85,19 +85,29 @@ def evaluate(model, inputs: np.ndarray, device=None, chunk: int = DEFAULT_CHUNK)
 def evaluate_with_input_grad(model, inputs: np.ndarray, output_index: int = 0, device=None,
                              chunk: int = GRAD_CHUNK) -> tuple[np.ndarray, np.ndarray]:
     """Outputs (P, out_dim) and the gradient of output ``output_index`` w.r.t. the inputs (P, in_dim),
-    float32, in chunks, no graph kept (:func:`methods.network.value_and_input_gradient`)."""
+    float32, in chunks, no graph kept (:func:`evaluate_with_input_grads` of the one output)."""
+    outs, grads = evaluate_with_input_grads(model, inputs, (output_index,), device, chunk)
+    return outs, grads[:, 0]
+
+
+def evaluate_with_input_grads(model, inputs: np.ndarray, output_indices, device=None,
+                              chunk: int = GRAD_CHUNK) -> tuple[np.ndarray, np.ndarray]:
+    """Outputs (P, out_dim) and the gradients of outputs ``output_indices`` (M of them) w.r.t. the
+    inputs (P, M, in_dim), float32, in chunks, no graph kept, one network evaluation per chunk
+    (:func:`methods.network.value_and_input_gradients`)."""
     device = _model_device(model, device)
     inputs = np.ascontiguousarray(inputs, dtype=np.float32)
     outs, grads = [], []
     with torch.enable_grad(), flush_denormals():
         for i in range(0, len(inputs), chunk):
             x = torch.from_numpy(inputs[i:i + chunk]).to(device)
-            y, g = value_and_input_gradient(model, x, output_index, create_graph=False)
+            y, g = value_and_input_gradients(model, x, output_indices, create_graph=False)
             outs.append(y.detach().float().cpu().numpy())
-            grads.append(g.float().cpu().numpy())
+            grads.append(torch.stack(g, dim=1).float().cpu().numpy())
     if not outs:
         out_dim = model.config["out_dim"] if hasattr(model, "config") else 1
-        return np.zeros((0, out_dim), np.float32), np.zeros((0, inputs.shape[1]), np.float32)
+        return (np.zeros((0, out_dim), np.float32),
+                np.zeros((0, len(output_indices), inputs.shape[1]), np.float32))
     return np.concatenate(outs), np.concatenate(grads)
 
 

@@ -43,7 +43,7 @@ from benchmark.params import Param
 from benchmark.timing import stage
 from methods import query
 from methods.base import Extraction, Method, register_method
-from methods.network import value_and_input_gradient
+from methods.network import value_and_input_gradients
 from methods.poisson import keep_vertices, poisson_depth
 
 #: Distance a target or exact grid field holds where the axis line hits nothing (the cube's side).
@@ -65,8 +65,8 @@ TRIM_FACTOR = float(np.sqrt(0.014 / 257) * 128)
 # ------------------------------------------------------------------------------------------------
 def values_and_axis_derivatives(model, x: torch.Tensor, create_graph: bool = True):
     """(f (B, 3), df_a/dx_a (B, 3)): the outputs and, per output a, its derivative along axis a."""
-    pairs = [value_and_input_gradient(model, x, a, create_graph) for a in range(3)]
-    return pairs[0][0], torch.stack([grad[:, a] for a, (_, grad) in enumerate(pairs)], dim=1)
+    f, grads = value_and_input_gradients(model, x, range(3), create_graph)
+    return f, torch.stack([grad[:, a] for a, grad in enumerate(grads)], dim=1)
 
 
 def predicted_hit_points(x: torch.Tensor, f: torch.Tensor, side: torch.Tensor) -> torch.Tensor:
@@ -239,9 +239,8 @@ class UODFMethod(Method):
             side = np.zeros(values.shape, dtype=np.int8)
             ijk = np.argwhere(evaluated)
             points = query.point_inputs(N, ijk)
-            for a in range(3):
-                _, grad = query.evaluate_with_input_grad(model, points, a, device)
-                side[tuple(ijk.T) + (a,)] = side_from_derivative(grad[:, a])
+            _, grads = query.evaluate_with_input_grads(model, points, range(3), device)
+            side[tuple(ijk.T)] = side_from_derivative(np.diagonal(grads, axis1=1, axis2=2))
         return {"distance": np.abs(values), "side": side}, {"query_fraction": info.fraction}
 
     def extract(self, grid_field, N) -> Extraction:

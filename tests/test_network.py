@@ -6,7 +6,8 @@ import torch
 import torch.nn.functional as F
 
 from methods.network import (ACTIVATIONS, GRID_INIT_SCALE, SEGMENT_SCALE, FeatureGrid, GridNetwork, endpoint_split,
-                             fast_softplus, make_network, trilinear, value_and_input_gradient)
+                             fast_softplus, make_network, trilinear, value_and_input_gradient,
+                             value_and_input_gradients)
 
 BETA = 100.0
 
@@ -266,6 +267,29 @@ def test_value_and_input_gradient_of_a_grid_network_matches_autograd(in_dim):
     assert torch.allclose(grad.double(), grad64, atol=1e-5 * grad64.abs().max().item())
     for mine, p in zip(ours, reference.parameters()):
         assert torch.allclose(mine.double(), p.grad, atol=1e-5 * p.grad.abs().max().item())
+
+
+@pytest.mark.parametrize("backbone", ["grid", "mlp"])
+def test_value_and_input_gradients_of_several_outputs_equal_one_at_a_time(backbone):
+    """The gradients of outputs 2, 0 (in that order) from one evaluation are, bit for bit, those
+    of each output asked alone, and a loss on the outputs and both gradients back-propagates into
+    the weights as the sum of the separate losses."""
+    torch.manual_seed(0)
+    grid = dict(grid_resolutions=(4, 8), grid_channels=2) if backbone == "grid" else {}
+    model = make_network(3, 3, depth=3, width=32, beta=BETA, backbone=backbone, **grid)
+    x = torch.rand(500, 3, generator=torch.Generator().manual_seed(3)) * 2 - 1
+    out, (g2, g0) = value_and_input_gradients(model, x, (2, 0))
+    for index, grad in ((2, g2), (0, g0)):
+        alone_out, alone = value_and_input_gradient(model, x, index)
+        assert torch.equal(out, alone_out) and torch.equal(grad, alone)
+    (out.square().sum() + g2.square().sum() + g0.square().sum()).backward()
+    together = [p.grad.clone() for p in model.parameters()]
+    model.zero_grad()
+    model(x).square().sum().backward()
+    for index in (2, 0):
+        value_and_input_gradient(model, x, index)[1].square().sum().backward()
+    for mine, p in zip(together, model.parameters()):
+        assert torch.allclose(mine, p.grad, atol=1e-6 * p.grad.abs().max().item())
 
 
 def test_value_and_input_gradient_of_other_networks_is_autograd():

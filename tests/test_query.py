@@ -98,6 +98,19 @@ def test_input_gradient_of_a_linear_model_is_its_weights():
     np.testing.assert_allclose(out, query.evaluate(lin, x, chunk=77), atol=1e-6)
 
 
+def test_input_gradients_of_several_outputs_are_those_asked_one_at_a_time():
+    """A linear model's gradients of outputs 1 and 0 are its weight rows, in the order asked, the
+    same as one output at a time; no points give an empty (0, 2, 3)."""
+    torch.manual_seed(0)
+    lin = torch.nn.Linear(3, 2)
+    x = np.random.default_rng(0).normal(size=(1000, 3)).astype(np.float32)
+    out, g = query.evaluate_with_input_grads(lin, x, (1, 0), chunk=300)
+    assert g.shape == (1000, 2, 3)
+    np.testing.assert_allclose(g[:, 0], np.broadcast_to(lin.weight[1].detach().numpy(), (1000, 3)), atol=1e-6)
+    np.testing.assert_array_equal(g[:, 1], query.evaluate_with_input_grad(lin, x, 0, chunk=300)[1])
+    assert query.evaluate_with_input_grads(lin, x[:0], (1, 0))[1].shape == (0, 2, 3)
+
+
 def test_input_gradient_of_a_grid_network_is_autograds():
     """A feature-grid network (fitted weights or not) in eval mode, its parameters requiring grad as
     after a fit: the chunked gradient (the grid's analytic Jacobian) equals autograd's to float32
