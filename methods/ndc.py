@@ -53,7 +53,7 @@ LEAKY_SLOPE = 0.01
 #: The residual blocks after the last 3x3x3 convolution (res_1 follows conv_0, res_2 conv_1).
 _TAIL_RESIDUALS = tuple(f"res_{i}" for i in range(3, 9))
 #: The 27 offsets of a 3x3x3 kernel in the C order of its weight's (kd, kh, kw) axes.
-_KERNEL_OFFSETS = np.array(list(itertools.product(range(3), repeat=3)), dtype=np.int64)
+KERNEL_OFFSETS = np.array(list(itertools.product(range(3), repeat=3)), dtype=np.int64)
 #: Rows gathered per matrix product of a sparse 3x3x3 convolution (bounds the (rows, 27 x 64) buffer).
 _CHUNK = 16384
 
@@ -99,22 +99,22 @@ def network_input(sdf_voxels: np.ndarray) -> np.ndarray:
     return np.clip(padded, -INPUT_CLIP, INPUT_CLIP)
 
 
-def _leaky(x: torch.Tensor) -> torch.Tensor:
+def leaky(x: torch.Tensor) -> torch.Tensor:
     return F.leaky_relu(x, LEAKY_SLOPE)
 
 
-def _pointwise(state: dict, name: str, x: torch.Tensor) -> torch.Tensor:
+def pointwise_conv(state: dict, name: str, x: torch.Tensor) -> torch.Tensor:
     """A 1x1x1 convolution on rows of features (M, C_in) -> (M, C_out)."""
     w = state[f"{name}.weight"]
     return torch.addmm(state[f"{name}.bias"], x, w.reshape(w.shape[0], -1).t())
 
 
 def _residual(state: dict, name: str, x: torch.Tensor) -> torch.Tensor:
-    y = _leaky(_pointwise(state, f"{name}.conv_1", x))
-    return _leaky(_pointwise(state, f"{name}.conv_2", y) + x)
+    y = leaky(pointwise_conv(state, f"{name}.conv_1", x))
+    return leaky(pointwise_conv(state, f"{name}.conv_2", y) + x)
 
 
-def _sparse_conv3(state: dict, name: str, features: torch.Tensor, index: np.ndarray, coords: np.ndarray) -> torch.Tensor:
+def sparse_conv3(state: dict, name: str, features: torch.Tensor, index: np.ndarray, coords: np.ndarray) -> torch.Tensor:
     """An unpadded 3x3x3 convolution evaluated at output positions ``coords`` (M, 3): output (p)
     reads the input at p + (a, b, c), a, b, c in {0, 1, 2}; ``index`` maps an input position to its
     row of ``features`` (-1: not computed, which the caller's dilation rules out)."""
@@ -122,18 +122,18 @@ def _sparse_conv3(state: dict, name: str, features: torch.Tensor, index: np.ndar
     matrix = w.permute(2, 3, 4, 1, 0).reshape(27 * w.shape[1], w.shape[0])
     out = torch.empty((len(coords), w.shape[0]), dtype=features.dtype)
     for start in range(0, len(coords), _CHUNK):
-        block = coords[start:start + _CHUNK, None, :] + _KERNEL_OFFSETS[None]
+        block = coords[start:start + _CHUNK, None, :] + KERNEL_OFFSETS[None]
         rows = torch.from_numpy(index[block[..., 0], block[..., 1], block[..., 2]].reshape(-1))
         gathered = features.index_select(0, rows).reshape(len(block), -1)
         out[start:start + _CHUNK] = torch.addmm(state[f"{name}.bias"], gathered, matrix)
-    return _leaky(out)
+    return leaky(out)
 
 
-def _dilate(coords: np.ndarray, shape: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray]:
+def receptive_positions(coords: np.ndarray, shape: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray]:
     """The positions an unpadded 3x3x3 convolution at ``coords`` reads, sorted (C order), and a
     volume of ``shape`` mapping each to its row (-1 elsewhere)."""
     mask = np.zeros(shape, dtype=bool)
-    reads = coords[:, None, :] + _KERNEL_OFFSETS[None]
+    reads = coords[:, None, :] + KERNEL_OFFSETS[None]
     mask[reads[..., 0].ravel(), reads[..., 1].ravel(), reads[..., 2].ravel()] = True
     needed = np.argwhere(mask)
     index = np.full(shape, -1, dtype=np.int64)
@@ -161,22 +161,22 @@ def ndc_vertex_offsets(sdf_voxels: np.ndarray, cells: np.ndarray, state: dict | 
     if len(cells) == 0:
         return np.zeros((0, 3), dtype=np.float32)
     # positions per layer output: conv_2 -> (n,)^3 (the cells), conv_1 -> (n + 2,)^3, conv_0 -> (n + 4,)^3
-    at_conv1, index_conv1 = _dilate(cells, (n + 2,) * 3)
-    at_conv0, index_conv0 = _dilate(at_conv1, (n + 4,) * 3)
+    at_conv1, index_conv1 = receptive_positions(cells, (n + 2,) * 3)
+    at_conv0, index_conv0 = receptive_positions(at_conv1, (n + 4,) * 3)
     with torch.no_grad():
-        patches = at_conv0[:, None, :] + _KERNEL_OFFSETS[None]
+        patches = at_conv0[:, None, :] + KERNEL_OFFSETS[None]
         x = torch.from_numpy(grid[patches[..., 0], patches[..., 1], patches[..., 2]])  # (M0, 27)
         w0 = state["conv_0.weight"]
-        x = _leaky(torch.addmm(state["conv_0.bias"], x, w0.permute(2, 3, 4, 1, 0).reshape(27, -1)))
+        x = leaky(torch.addmm(state["conv_0.bias"], x, w0.permute(2, 3, 4, 1, 0).reshape(27, -1)))
         x = _residual(state, "res_1", x)
-        x = _sparse_conv3(state, "conv_1", x, index_conv0, at_conv1)
+        x = sparse_conv3(state, "conv_1", x, index_conv0, at_conv1)
         x = _residual(state, "res_2", x)
-        x = _sparse_conv3(state, "conv_2", x, index_conv1, cells)
+        x = sparse_conv3(state, "conv_2", x, index_conv1, cells)
         for name in _TAIL_RESIDUALS:
             x = _residual(state, name, x)
-        x = _leaky(_pointwise(state, "conv_3", x))
-        x = _leaky(_pointwise(state, "conv_4", x))
-        offsets = _pointwise(state, "conv_out_float", x)
+        x = leaky(pointwise_conv(state, "conv_3", x))
+        x = leaky(pointwise_conv(state, "conv_4", x))
+        offsets = pointwise_conv(state, "conv_out_float", x)
     return np.clip(offsets.numpy(), 0.0, 1.0)
 
 
