@@ -209,6 +209,12 @@ class Method:
         None. Such a method is left out of the default method list and refused when named."""
         return None
 
+    def extraction_data_digest(self) -> str:
+        """A digest of the data files (not code) the extraction reads, e.g. trained weights, or ''
+        when it reads none: part of the key of its cached meshes, so a changed file never serves a
+        mesh extracted with the old one."""
+        return ""
+
     def describe(self) -> dict[str, Any]:
         return {"name": self.name, "extractor": self.extractor, "input": self.input_kind, "params": dict(self.params)}
 

@@ -44,6 +44,9 @@ class SDFNDCMethod(SDFMethod):
             return str(exc)
         return None
 
+    def extraction_data_digest(self) -> str:
+        return ndc.WEIGHTS_SHA256
+
     def neural_grid(self, model, N, device=None):
         margin = query.block_half_diagonal(N, self.params["stride"]) + ndc.INPUT_CLIP * spacing(N)
         values, _, info = query.sparse_grid_points(model, N, query.near_level(0.0, margin), device,

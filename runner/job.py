@@ -202,7 +202,8 @@ def _job_body(spec: JobSpec, shape, device, timer: StageTimer, result: TaskResul
                               "output_dim": method.output_dim, "budget": dataclasses.asdict(get_budget(spec.budget, spec.budget_params)),
                               "seed": spec.seed, "code": fit_code_digest(method), "fit_params": method.fit_params()})
     mesh_key = digest({"shape": result.shape_hash, "method": spec.method, "params": method.params, "mode": spec.mode,
-                       "grid": spec.grid, "weights": weights_key, "code": extraction_code_digest(method)})
+                       "grid": spec.grid, "weights": weights_key, "code": extraction_code_digest(method),
+                       "data": method.extraction_data_digest()})
     # checkpoints need the fit, a decomposition the fitted field
     cached = None if spec.checkpoints or spec.decompose else caches.load_mesh(spec.method, mesh_key)
     if cached is not None:
