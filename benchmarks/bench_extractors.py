@@ -13,6 +13,8 @@ benchmark.grid. Compares, at N = 64 and 128:
   apart (in a run they are the network's, part of the extraction),
 * NDC (:mod:`methods.ndc`: its CNN on the cells that change sign, then dual contouring) on the SDF
   grid, where NDC's published weights are found,
+* UNDC (the ``udf-ndc`` method: its two CNNs on the UDF grid, then dual contouring of the flagged
+  edges), where its weights are found,
 * DCUDF (:func:`methods.dcudf.dcudf_extract`) on the UDF grid, the authors' r, the ``udf-dcudf``
   method's default iterations, the analytic UDF and its gradient at the moving vertices; one round
   (its optimisation takes seconds to minutes), ``main`` reports it once per N with the queries apart.
@@ -156,6 +158,18 @@ def test_ndc(benchmark, N):
     assert len(extraction.faces) > 0
 
 
+#: The ``udf-ndc`` method, which runs UNDC on a UDF grid; None without its weights.
+UNDC = None if METHODS.get("udf-ndc").unavailable() else get_method("udf-ndc")
+
+
+@pytest.mark.parametrize("N", RESOLUTIONS)
+def test_undc(benchmark, N):
+    if UNDC is None:
+        pytest.skip(METHODS.get("udf-ndc").unavailable())
+    extraction = benchmark(UNDC.extract, {"udf": fields(N)[1]}, N)
+    assert len(extraction.faces) > 0
+
+
 def dcudf_on_heat_sink(udf: np.ndarray, query_seconds: list | None = None):
     """DCUDF on the heat sink (the authors' r at this N, :data:`CPU_ITERATIONS` iterations); the
     analytic field's query seconds are appended to ``query_seconds`` when given."""
@@ -183,7 +197,7 @@ def _median_time(fn, repeats):
 def main(repeats: int = 15):
     for N in RESOLUTIONS:
         sdf, udf, grad, ids, s, normals = fields(N)
-        mc, edc, mu, nd, dm, dm_queries = [], [], [], [], [], []
+        mc, edc, mu, nd, und, dm, dm_queries = [], [], [], [], [], [], []
         stages = []
         for _ in range(repeats):  # interleaved so that machine load hits all alike
             mc.append(_median_time(lambda: marching_cubes(sdf, 0.0), 1))
@@ -194,6 +208,8 @@ def main(repeats: int = 15):
             dm_queries.append(sum(queries))
             if NDC is not None:
                 nd.append(_median_time(lambda: NDC.extract(sdf, N), 1))
+            if UNDC is not None:
+                und.append(_median_time(lambda: UNDC.extract({"udf": udf}, N), 1))
         mc, edc, mu = np.median(mc), np.median(edc), np.median(mu)
         st = {k: float(np.median([t[k] for t in stages])) for k in stages[0]}
         print(f"N={N}: intersected edges {len(ids)}, h={spacing(N):.4f}")
@@ -203,7 +219,9 @@ def main(repeats: int = 15):
               + f" | DualMesh-UDF {np.median(dm) * 1e3:.1f} ms without its field queries (ratio {np.median(dm) / mc:.2f}, "
                 f"DualMesh/E-DC {np.median(dm) / edc:.2f}; the analytic field's queries {np.median(dm_queries) * 1e3:.0f} ms)"
               + (f" | NDC {np.median(nd) * 1e3:.1f} ms (ratio {np.median(nd) / mc:.2f}, NDC/E-DC "
-                 f"{np.median(nd) / edc:.2f})" if nd else " | NDC: weights absent"))
+                 f"{np.median(nd) / edc:.2f})" if nd else " | NDC: weights absent")
+              + (f" | UNDC {np.median(und) * 1e3:.1f} ms (ratio {np.median(und) / mc:.2f}, UNDC/E-DC "
+                 f"{np.median(und) / edc:.2f})" if und else " | UNDC: weights absent"))
         queries = []
         dc = _median_time(lambda: dcudf_on_heat_sink(udf, queries), 1)
         print(f"  DCUDF ({CPU_ITERATIONS} iterations, one run) {(dc - sum(queries)):.1f} s without its field queries "
