@@ -238,19 +238,42 @@ class PointCloudMethod(Method):
 
 
 class LearnedPointCloudMethod(PointCloudMethod):
-    """A learned method of the ``reconstruct`` task: a K-NN local network (:mod:`methods.knn_network`)
-    trained once across many shapes (:mod:`methods.knn_training`), then applied to a test cloud.
+    """A learned method of the ``reconstruct`` task: a network trained once across many shapes (the
+    run layer caches it per training set, method, budget and code), then applied to a test cloud.
 
-    Class attributes: ``network_kind`` ``'segment'`` (the network takes a segment (u, v) and the K
-    nearest input points of its midpoint) or ``'point'`` (a point x and its K nearest input points);
-    ``output_dim`` its outputs. Training samples and labels come from the shared sampler and the
-    exact fields of each training shape, as for the encoding methods (:meth:`training_targets`;
-    ``segments`` or ``points`` of :class:`benchmark.sampler.Samples` by ``network_kind``), the loss
-    from :meth:`loss` (``prediction`` (B, output_dim) logits/values, ``targets`` torch tensors).
+    :class:`methods.knn_training.KNNTrainedMethod` trains the shared K-NN local network
+    (:mod:`methods.knn_network`). Its class attributes: ``network_kind`` ``'segment'`` (the network takes a
+    segment (u, v) and the K nearest input points of its midpoint) or ``'point'`` (a point x and its K
+    nearest input points); ``output_dim`` its outputs. Training samples and labels come from the
+    shared sampler and the exact fields of each training shape, as for the encoding methods
+    (:meth:`training_targets`; ``segments`` or ``points`` of :class:`benchmark.sampler.Samples` by
+    ``network_kind``), the loss from :meth:`loss` (``prediction`` (B, output_dim) logits/values,
+    ``targets`` torch tensors).
+
+    A method with its own architecture and training implements :meth:`train_network`,
+    :meth:`network_to_bytes` and :meth:`network_from_bytes`, and names the modules of its training
+    code in ``training_modules`` (part of the weights' cache key, with the method's own module).
     """
 
     learned: ClassVar[bool] = True
     network_kind: ClassVar[str] = "point"
+    #: Modules (besides the method's own) whose code the trained network depends on.
+    training_modules: ClassVar[tuple[str, ...]] = ()
+
+    def train_network(self, shapes: list, budget, seed: int, device=None, progress=None):
+        """Train this method's network on ``shapes`` (:class:`datasets.Shape`) under ``budget`` (a
+        :class:`methods.knn_network.KNNBudget`: the training set's size and pools, the steps) from
+        ``seed``; ``progress(step=..., loss=...)`` now and then. Returns an object with ``model``
+        (eval mode), ``steps``, ``seconds`` (the step loop), ``samples_per_s`` and ``final_loss``."""
+        raise NotImplementedError
+
+    def network_to_bytes(self, trained, budget) -> bytes:
+        """The bytes the run layer stores (checksummed) for ``trained`` (:meth:`train_network`'s result)."""
+        raise NotImplementedError
+
+    def network_from_bytes(self, data: bytes, device=None):
+        """The model (eval mode, on ``device``) of :meth:`network_to_bytes`' bytes."""
+        raise NotImplementedError
 
     def training_targets(self, fields, samples) -> dict[str, np.ndarray]:
         raise NotImplementedError

@@ -79,6 +79,7 @@ from benchmark.sampler import sample_training_data
 from benchmark.surface import sample_surface
 from datasets import MeshError, Shape, get_dataset
 from datasets.builtin import VARIANTS, generate_shape
+from methods.base import LearnedPointCloudMethod
 from methods.device import get_device, seeded_generator
 from methods.fitting import weights_from_bytes, weights_to_bytes
 from methods.training_loop import FittingError, run_steps
@@ -86,7 +87,7 @@ from methods.knn_network import KNN_BUDGETS, KNNBudget, knn_neighbourhoods, make
 
 __all__ = ["TEST_SEED", "DEFAULT_TRAINING_SEED", "TrainingSetError", "training_shapes", "builtin_test_hashes",
            "training_set_digest", "ShapePool", "TrainingPools", "KNNTrainResult", "train", "knn_model_to_bytes",
-           "knn_model_from_bytes", "get_knn_budget"]
+           "knn_model_from_bytes", "get_knn_budget", "KNNTrainedMethod"]
 
 #: Generator seed of the built-in test dataset (``get_dataset('builtin')``'s default).
 TEST_SEED = 0
@@ -370,3 +371,19 @@ def knn_model_from_bytes(data: bytes, device=None, method_name: str | None = Non
     model, blob = weights_from_bytes(data, make_knn_network, device, method_name, what="K-NN weights")
     model.knn_k = int(blob["budget"]["k"])
     return model, float(blob["final_loss"])
+
+
+class KNNTrainedMethod(LearnedPointCloudMethod):
+    """A learned reconstruction method whose network is the shared K-NN local network, trained by
+    :func:`train` (``network_kind``, ``output_dim``, ``training_targets``, ``loss``)."""
+
+    training_modules = ("methods.knn_training",)
+
+    def train_network(self, shapes, budget, seed, device=None, progress=None) -> KNNTrainResult:
+        return train(self, shapes, budget, seed=seed, device=device, progress=progress)
+
+    def network_to_bytes(self, trained: KNNTrainResult, budget) -> bytes:
+        return knn_model_to_bytes(trained.model, budget, self.name, trained.final_loss)
+
+    def network_from_bytes(self, data: bytes, device=None):
+        return knn_model_from_bytes(data, device=device, method_name=self.name)[0]

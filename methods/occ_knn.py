@@ -27,7 +27,8 @@ import torch.nn.functional as F
 
 from benchmark.grid import spacing
 from benchmark.timing import stage
-from methods.base import Extraction, LearnedPointCloudMethod, register_method
+from methods.base import Extraction, register_method
+from methods.knn_training import KNNTrainedMethod
 from methods.knn_query import band_points, evaluate_knn, knn_k
 from methods.marching_cubes import marching_cubes_grid
 from benchmark.params import Param
@@ -45,7 +46,7 @@ def far_occupancy(known: np.ndarray) -> np.ndarray:
 
 
 @register_method
-class OccKNNMethod(LearnedPointCloudMethod):
+class OccKNNMethod(KNNTrainedMethod):
     name = "occ-knn"
     description = "K-NN local network to occupancy (POCO/ConvONet family) + marching cubes"
     network_kind = "point"

@@ -17,7 +17,8 @@ from scipy.special import expit
 
 from benchmark.grid import spacing
 from benchmark.timing import record, stage
-from methods.base import Extraction, LearnedPointCloudMethod, register_method
+from methods.base import Extraction, register_method
+from methods.knn_training import KNNTrainedMethod
 from methods.knn_query import band_edges, evaluate_knn, knn_k
 from benchmark.params import Param
 from methods.query import edge_inputs
@@ -25,7 +26,7 @@ from methods.sals import nearer_endpoint_normals, segment_loss, segment_targets
 
 
 @register_method
-class SALSKNNMethod(LearnedPointCloudMethod):
+class SALSKNNMethod(KNNTrainedMethod):
     name = "sals-knn"
     description = "SALS K-NN local network (trained across shapes) + E-DC, from a raw point cloud"
     network_kind = "segment"

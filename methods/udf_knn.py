@@ -15,7 +15,8 @@ import numpy as np
 
 from benchmark.grid import spacing
 from benchmark.timing import record, stage
-from methods.base import Extraction, LearnedPointCloudMethod, register_method
+from methods.base import Extraction, register_method
+from methods.knn_training import KNNTrainedMethod
 from methods.knn_query import band_points, evaluate_knn, knn_k
 from benchmark.params import Param
 from methods.query import point_inputs
@@ -27,7 +28,7 @@ FAR = 1.0
 
 
 @register_method
-class UDFKNNMethod(LearnedPointCloudMethod):
+class UDFKNNMethod(KNNTrainedMethod):
     name = "udf-knn"
     description = "K-NN local network to the unsigned distance (GeoUDF/CAP-UDF family) + MeshUDF-style extraction"
     network_kind = "point"

@@ -46,7 +46,7 @@ def network_key(method, budget, train_dirs: tuple[str, ...]) -> tuple[str, tuple
     shapes = _shapes(budget.training_shapes, tuple(train_dirs))
     key = digest({"training_set": training_set_digest(shapes), "method": method.name,
                   "budget": dataclasses.asdict(budget), "seed": DEFAULT_TRAINING_SEED,
-                  "code": code_digest(type(method).__module__, "methods.knn_training")})
+                  "code": code_digest(type(method).__module__, *method.training_modules)})
     return key, shapes
 
 
@@ -55,7 +55,7 @@ def trained_network(method, budget, train_dirs: tuple[str, ...], cache_root: str
     """(model in eval mode with ``knn_k`` set, facts) of ``method`` at ``budget``: from the cache, or
     trained now (and cached). Facts: ``network_key``, ``trained`` (1 if trained here), and after a
     training ``train_steps``, ``train_loop_s``, ``train_samples_per_s``, ``train_final_loss``."""
-    from methods import knn_training
+    from methods.knn_training import DEFAULT_TRAINING_SEED
 
     key, shapes = network_key(method, budget, train_dirs)
     root = Path(cache_root)
@@ -71,11 +71,10 @@ def trained_network(method, budget, train_dirs: tuple[str, ...], cache_root: str
         if data is not None:
             if stats is not None:
                 stats.hit("network")
-            model, _ = knn_training.knn_model_from_bytes(data, device=device, method_name=method.name)
-            return model, facts
-        result = knn_training.train(method, list(shapes), budget, seed=knn_training.DEFAULT_TRAINING_SEED,
-                                    device=device, progress=progress)
-        write_checked(path, knn_training.knn_model_to_bytes(result.model, budget, method.name, result.final_loss))
+            return method.network_from_bytes(data, device=device), facts
+        result = method.train_network(list(shapes), budget, seed=DEFAULT_TRAINING_SEED, device=device,
+                                      progress=progress)
+        write_checked(path, method.network_to_bytes(result, budget))
     facts.update(trained=1, train_steps=result.steps, train_loop_s=result.seconds,
                  train_samples_per_s=result.samples_per_s, train_final_loss=result.final_loss)
     return result.model, facts
