@@ -27,7 +27,7 @@ class BallPivotingMethod(PointCloudMethod):
         "normal_k": Param(10, "neighbours of the PCA normal estimate", ge=3),
     }
 
-    def reconstruct(self, points: np.ndarray, N: int, device=None) -> Extraction:
+    def reconstruct(self, points: np.ndarray, N: int, device=None, seed: int = 0) -> Extraction:
         import pymeshlab
 
         ms = oriented_point_set(points, self.params["normal_k"])

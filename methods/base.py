@@ -231,9 +231,10 @@ class PointCloudMethod(Method):
     task: ClassVar[str] = "reconstruct"
     input_kind: ClassVar[str] = "points"
 
-    def reconstruct(self, points: np.ndarray, N: int, device=None) -> Extraction:
+    def reconstruct(self, points: np.ndarray, N: int, device=None, seed: int = 0) -> Extraction:
         """A mesh (canonical frame) from ``points`` (P, 3) float64 in the canonical frame; ``N`` is
-        the run's grid resolution (methods with their own resolution rule derive it from N)."""
+        the run's grid resolution (methods with their own resolution rule derive it from N); ``seed``
+        is the job's seed (a method that optimises or draws anything per shape seeds it from it)."""
         raise NotImplementedError
 
 
@@ -281,7 +282,7 @@ class LearnedPointCloudMethod(PointCloudMethod):
     def loss(self, prediction, targets: dict):
         raise NotImplementedError
 
-    def reconstruct(self, points: np.ndarray, N: int, device=None, model=None) -> Extraction:
+    def reconstruct(self, points: np.ndarray, N: int, device=None, seed: int = 0, model=None) -> Extraction:
         """A mesh from ``points`` with the trained ``model`` (eval mode; required)."""
         raise NotImplementedError
 

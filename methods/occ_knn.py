@@ -64,7 +64,7 @@ class OccKNNMethod(KNNTrainedMethod):
     def loss(self, prediction, targets):
         return F.binary_cross_entropy_with_logits(prediction[:, 0], targets["occupancy"])
 
-    def reconstruct(self, points, N, device=None, model=None) -> Extraction:
+    def reconstruct(self, points, N, device=None, seed=0, model=None) -> Extraction:
         if model is None:
             raise ValueError("occ-knn reconstructs with a trained network: none given")
         with stage("band"):

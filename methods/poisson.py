@@ -49,7 +49,7 @@ class PoissonMethod(PointCloudMethod):
                             ge=0),
     }
 
-    def reconstruct(self, points: np.ndarray, N: int, device=None) -> Extraction:
+    def reconstruct(self, points: np.ndarray, N: int, device=None, seed: int = 0) -> Extraction:
         ms = oriented_point_set(points, self.params["normal_k"])
         depth = self.params["depth"] or poisson_depth(N)
         with stage("poisson"):

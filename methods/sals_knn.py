@@ -50,7 +50,7 @@ class SALSKNNMethod(KNNTrainedMethod):
     def loss(self, prediction, targets):
         return segment_loss(prediction, targets)
 
-    def reconstruct(self, points, N, device=None, model=None) -> Extraction:
+    def reconstruct(self, points, N, device=None, seed=0, model=None) -> Extraction:
         from methods.edc import edc_extract
 
         if model is None:

@@ -48,7 +48,7 @@ class UDFKNNMethod(KNNTrainedMethod):
     def loss(self, prediction, targets):
         return (prediction[:, 0].clamp(max=CLAMP) - targets["udf"].clamp(max=CLAMP)).abs().mean()
 
-    def reconstruct(self, points, N, device=None, model=None) -> Extraction:
+    def reconstruct(self, points, N, device=None, seed=0, model=None) -> Extraction:
         from methods.meshudf import meshudf_extract
 
         if model is None:

@@ -402,7 +402,7 @@ def _reconstruct_body(spec: JobSpec, shape, device, timer: StageTimer, result: T
     result.info["input_points"] = int(len(points))
     report("reconstructing")
     with stage("reconstruct"):
-        extraction = method.reconstruct(points, spec.grid, device, **network)
+        extraction = method.reconstruct(points, spec.grid, device, seed=spec.seed, **network)
     result.info.update({k: v for k, v in extraction.info.items() if isinstance(v, (int, float, str, bool))})
     _score(metrics.evaluate, spec, shape, np.asarray(extraction.vertices, dtype=np.float64),
            np.asarray(extraction.faces, dtype=np.int64), result, report)
