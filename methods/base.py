@@ -80,6 +80,8 @@ class Method:
         any of them (``--method-param NAME.PARAM=VALUE``), parsed and checked by :class:`Param`.
     display_order : position in tables, plots and the default ``--methods`` list (low first).
     color : hex colour of the method in the report's plots.
+    table_note : a sentence every table caption of a run with the method carries, where its row
+        could be mistaken for something else (e.g. an ablation named after a published family).
     """
 
     name: ClassVar[str] = ""
@@ -90,6 +92,7 @@ class Method:
     parameters: ClassVar[dict[str, Param]] = {}
     display_order: ClassVar[int] = 100
     color: ClassVar[str] = "#7f7f7f"
+    table_note: ClassVar[str] = ""
     #: The benchmark task the method serves: ``'encode'`` (a field fitted per shape from the mesh's
     #: exact fields: this class) or ``'reconstruct'`` (a mesh from a raw point cloud:
     #: :class:`PointCloudMethod`).

@@ -51,6 +51,8 @@ class OccKNNMethod(KNNTrainedMethod):
     description = "K-NN local network to occupancy (POCO/ConvONet family) + marching cubes"
     network_kind = "point"
     output_dim = 1
+    table_note = ("occ-knn is SALS's K-NN encoder with an occupancy output, a controlled ablation of the "
+                  "representation (the published POCO is the row poco).")
     extractor = "marching cubes"
     display_order = 120
     color = "#17becf"

@@ -33,6 +33,8 @@ class UDFKNNMethod(KNNTrainedMethod):
     description = "K-NN local network to the unsigned distance (GeoUDF/CAP-UDF family) + MeshUDF-style extraction"
     network_kind = "point"
     output_dim = 1
+    table_note = ("udf-knn is SALS's K-NN encoder with an unsigned-distance output, a controlled ablation of the "
+                  "representation (the published GeoUDF and CAP-UDF are the rows geoudf and cap-udf).")
     extractor = "MeshUDF-style"
     display_order = 130
     color = "#9467bd"

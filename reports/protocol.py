@@ -16,6 +16,8 @@ device      e.g. 'cpu (AMD EPYC 7B13)'; cpu_model, gpu: str or None
 git_commit  str or None
 sweep       optional: {key: [values in the user's order]} of a sweep run (:mod:`reports.sweep`);
             empty or missing when the run is not a sweep
+method_notes optional: {method: sentence} every caption carries (what a row is, where its name
+            could mislead; ``Method.table_note``)
 ========== =====================================================================
 
 The metric protocol (which metrics, their multipliers, the protocol text) comes from the preset
@@ -99,7 +101,8 @@ def protocol_items(context: dict) -> list[tuple[str, str]]:
 
 def protocol_caption(context: dict) -> str:
     """'Protocol: dataset: ...; mode: ...; ... .' (one line)."""
-    return "Protocol: " + "; ".join(f"{k}: {v}" for k, v in protocol_items(context)) + "."
+    notes = [note for m, note in (context.get("method_notes") or {}).items() if m in context["methods"]]
+    return " ".join(["Protocol: " + "; ".join(f"{k}: {v}" for k, v in protocol_items(context)) + "."] + notes)
 
 
 def report_title(context: dict, what: str = "summary") -> str:

@@ -72,7 +72,16 @@ def report_context(record: dict[str, Any]) -> dict[str, Any]:
         "device": env.get("device"), "cpu_model": env.get("cpu_model"), "gpu": env.get("gpu"),
         "git_commit": env.get("git_commit"), "sweep": sweep_of(record),
         "budget_params": config.get("budget_params", {}), "execution": record.get("execution"),
+        "method_notes": method_notes(resolved.get("methods", [])),
     }
+
+
+def method_notes(names) -> dict[str, str]:
+    """{method: its table note} of the registered methods among ``names`` that have one."""
+    from methods.base import METHODS
+
+    known = set(METHODS.names())
+    return {n: METHODS.get(n).table_note for n in names if n in known and METHODS.get(n).table_note}
 
 
 def export(run_dir: str | Path, db=None, record: dict[str, Any] | None = None,

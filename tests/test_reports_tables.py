@@ -349,3 +349,16 @@ def test_hostile_shape_name_is_one_escaped_markdown_cell(tmp_path):
     per_shape = md_tables(text)["Per shape: CD ×1e3 ↓ (mean over seeds)"]
     assert per_shape[1:] == [[r"a\|b\<script\>", "**2.000**"], ["cube", "failed"]]  # one row, two cells each
     assert r"- cube / sals / seed 0: ValueError: bad \| \<b\>mesh\</b\> \*x\*" in text
+
+
+def test_caption_carries_the_notes_of_the_run_methods_only():
+    from reports.protocol import protocol_caption
+    from runner.export import method_notes
+
+    notes = method_notes(["sals-knn", "udf-knn", "occ-knn", "no-such-method"])
+    assert set(notes) == {"udf-knn", "occ-knn"} and "controlled ablation" in notes["udf-knn"]
+    context = dict(CONTEXT, task="reconstruct", methods=["sals-knn", "udf-knn"], method_notes=notes)
+    caption = protocol_caption(context)
+    assert caption.startswith("Protocol: dataset: builtin (3 shapes); task: reconstruct")
+    assert caption.endswith(notes["udf-knn"]) and notes["occ-knn"] not in caption
+    assert protocol_caption(CONTEXT).endswith(".")  # no notes: the protocol sentence alone
