@@ -267,7 +267,8 @@ class LearnedPointCloudMethod(PointCloudMethod):
     def train_network(self, shapes: list, budget, seed: int, device=None, progress=None):
         """Train this method's network on ``shapes`` (:class:`datasets.Shape`) under ``budget`` (a
         :class:`methods.knn_network.KNNBudget`: the training set's size and pools, the steps) from
-        ``seed``; ``progress(step=..., loss=...)`` now and then. Returns an object with ``model``
+        ``seed``; ``progress(step=..., loss=...)`` now and then, with ``total=`` the step count when the
+        method's schedule has its own (not ``budget.steps``). Returns an object with ``model``
         (eval mode), ``steps``, ``seconds`` (the step loop), ``samples_per_s`` and ``final_loss``."""
         raise NotImplementedError
 

@@ -329,7 +329,9 @@ def train_main(argv: Sequence[str]) -> int:
     for name in learned:
         bar = tqdm(total=plan.budget.steps, desc=f"train {name} ({plan.budget.name})", disable=plan.config.quiet)
 
-        def progress(step, loss, bar=bar):
+        def progress(step, loss, total=None, bar=bar):
+            if total is not None and bar.total != total:
+                bar.total = total
             bar.update(step - bar.n)
             bar.set_postfix(loss=f"{loss:.4g}")
 

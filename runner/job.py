@@ -388,12 +388,14 @@ def _reconstruct_body(spec: JobSpec, shape, device, timer: StageTimer, result: T
 
         report("training")
         stats = CacheStats()
+
+        def training_progress(step, loss, total=None):
+            report("training", step=step, loss=loss)
+
         with stage("network"):
             network["model"], facts = trained_network(method, get_knn_budget(spec.budget, spec.budget_params),
-                                                      spec.train_dirs,
-                                                      spec.cache_dir, device, stats=stats,
-                                                      progress=lambda step, loss: report("training", step=step,
-                                                                                         loss=loss))
+                                                      spec.train_dirs, spec.cache_dir, device, stats=stats,
+                                                      progress=training_progress)
         result.info.update(facts)
         result.cache, result.cache_rejected = list(stats.hits), list(stats.rejected)
     report("sampling")
