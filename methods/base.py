@@ -234,6 +234,15 @@ class PointCloudMethod(Method):
     task: ClassVar[str] = "reconstruct"
     input_kind: ClassVar[str] = "points"
 
+    def checked_points(self, points) -> np.ndarray:
+        """``points`` as a float64 (P, 3) array with P >= 1; otherwise a ValueError naming the method."""
+        points = np.asarray(points, dtype=np.float64)
+        if points.ndim != 2 or points.shape[1] != 3:
+            raise ValueError(f"{self.name} needs a (P, 3) point cloud, got shape {points.shape}")
+        if len(points) == 0:
+            raise ValueError(f"{self.name}: the point cloud has no points")
+        return points
+
     def reconstruct(self, points: np.ndarray, N: int, device=None, seed: int = 0) -> Extraction:
         """A mesh (canonical frame) from ``points`` (P, 3) float64 in the canonical frame; ``N`` is
         the run's grid resolution (methods with their own resolution rule derive it from N); ``seed``

@@ -304,11 +304,7 @@ class CAPUDFMethod(PointCloudMethod):
     }
 
     def reconstruct(self, points: np.ndarray, N: int, device=None, seed: int = 0) -> Extraction:
-        points = np.asarray(points, dtype=np.float64)
-        if points.ndim != 2 or points.shape[1] != 3:
-            raise ValueError(f"cap-udf needs a (P, 3) point cloud, got shape {points.shape}")
-        if len(points) == 0:
-            raise ValueError("cap-udf: the point cloud has no points")
+        points = self.checked_points(points)
         if len(points) <= SIGMA_NEIGHBOUR:
             raise ValueError(f"cap-udf: {len(points)} points, it needs more than {SIGMA_NEIGHBOUR} (its query "
                              f"spread is the distance to the {SIGMA_NEIGHBOUR}th neighbour)")

@@ -293,6 +293,18 @@ def weights_to_bytes(model, budget: dict, method_name: str, final_loss: float) -
     return buf.getvalue()
 
 
+def refused_weights_from_bytes(data: bytes, build: Callable[..., torch.nn.Module], device=None,
+                               method_name: str | None = None, what: str = "weights") -> torch.nn.Module:
+    """The model of :func:`weights_from_bytes`; any failure (truncated or foreign bytes, another
+    method's weights, another architecture) as one line ``ValueError("<what> refused (<error>): ...")``."""
+    try:
+        model, _ = weights_from_bytes(data, build, device, method_name, what=what)
+    except Exception as exc:
+        first = (str(exc).splitlines() or [""])[0][:200]
+        raise ValueError(f"{what} refused ({type(exc).__name__}): {first}") from None
+    return model
+
+
 def weights_from_bytes(data: bytes, build: Callable[..., torch.nn.Module], device=None,
                        method_name: str | None = None, what: str = "weights") -> tuple[torch.nn.Module, dict]:
     """(``build(**config)`` with the stored weights, in eval mode on ``device``; the stored dict) from

@@ -46,7 +46,7 @@ from benchmark.sampler import GROUPS, group_counts
 from benchmark.timing import stage
 from methods.base import Extraction, LearnedPointCloudMethod, register_method
 from methods.device import get_device, seeded_generator
-from methods.fitting import weights_from_bytes, weights_to_bytes
+from methods.fitting import refused_weights_from_bytes, weights_to_bytes
 from methods.gifs_extraction import CORNER_PAIRS, CORNERS, extract_gifs_mesh
 from methods.gifs_network import GIFSNetwork, make_gifs_network, voxelize_cloud
 from methods.knn_query import band_points
@@ -306,21 +306,12 @@ class GIFSMethod(LearnedPointCloudMethod):
                                 self.name, trained.final_loss)
 
     def network_from_bytes(self, data: bytes, device=None) -> GIFSNetwork:
-        try:
-            model, _ = weights_from_bytes(data, make_gifs_network, device, self.name, what="GIFS weights")
-        except Exception as exc:  # another method's, truncated or foreign bytes, another architecture
-            first = (str(exc).splitlines() or [""])[0][:200]
-            raise ValueError(f"GIFS weights refused ({type(exc).__name__}): {first}") from None
-        return model
+        return refused_weights_from_bytes(data, make_gifs_network, device, self.name, what="GIFS weights")
 
     def reconstruct(self, points, N, device=None, seed=0, model=None) -> Extraction:
         if model is None:
             raise ValueError("gifs reconstructs with a trained network: none given")
-        points = np.asarray(points, dtype=np.float64)
-        if points.ndim != 2 or points.shape[1] != 3:
-            raise ValueError(f"gifs needs a (P, 3) point cloud, got shape {points.shape}")
-        if len(points) == 0:
-            raise ValueError("gifs: the point cloud has no points")
+        points = self.checked_points(points)
         device = get_device(device)
         model = model.to(device).eval()
         h = spacing(N)

@@ -45,7 +45,7 @@ from benchmark.sampler import GROUPS
 from benchmark.timing import stage
 from methods.base import Extraction, LearnedPointCloudMethod, register_method
 from methods.device import get_device, seeded_generator
-from methods.fitting import weights_from_bytes, weights_to_bytes
+from methods.fitting import refused_weights_from_bytes, weights_to_bytes
 from methods.knn_network import knn_neighbourhoods
 from methods.knn_query import band_points
 from methods.knn_training import KNNTrainResult, TrainingPools, get_knn_budget
@@ -331,21 +331,12 @@ class POCOMethod(LearnedPointCloudMethod):
                                 self.name, trained.final_loss)
 
     def network_from_bytes(self, data: bytes, device=None) -> POCONetwork:
-        try:
-            model, _ = weights_from_bytes(data, make_poco_network, device, self.name, what="POCO weights")
-        except Exception as exc:  # another method's, truncated or foreign bytes, another architecture
-            first = (str(exc).splitlines() or [""])[0][:200]
-            raise ValueError(f"POCO weights refused ({type(exc).__name__}): {first}") from None
-        return model
+        return refused_weights_from_bytes(data, make_poco_network, device, self.name, what="POCO weights")
 
     def reconstruct(self, points, N, device=None, seed=0, model=None) -> Extraction:
         if model is None:
             raise ValueError("poco reconstructs with a trained network: none given")
-        points = np.asarray(points, dtype=np.float64)
-        if points.ndim != 2 or points.shape[1] != 3:
-            raise ValueError(f"poco needs a (P, 3) point cloud, got shape {points.shape}")
-        if len(points) == 0:
-            raise ValueError("poco: the point cloud has no points")
+        points = self.checked_points(points)
         if len(points) < model.decoder_k:
             raise ValueError(f"poco: {len(points)} points, fewer than the decoder's {model.decoder_k} neighbours")
         device = get_device(device)
