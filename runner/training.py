@@ -52,7 +52,7 @@ def network_key(method, budget, train_dirs: tuple[str, ...]) -> tuple[str, tuple
 
 def trained_network(method, budget, train_dirs: tuple[str, ...], cache_root: str | Path, device=None,
                     progress: Callable[..., None] | None = None, stats: CacheStats | None = None):
-    """(model in eval mode with ``knn_k`` set, facts) of ``method`` at ``budget``: from the cache, or
+    """(model in eval mode, facts) of ``method`` at ``budget`` (its own :meth:`train_network`): from the cache, or
     trained now (and cached). Facts: ``network_key``, ``trained`` (1 if trained here), and after a
     training ``train_steps``, ``train_loop_s``, ``train_samples_per_s``, ``train_final_loss``."""
     from methods.knn_training import DEFAULT_TRAINING_SEED
