@@ -34,13 +34,13 @@ from benchmark.fields import ExactFields
 from benchmark.grid import LOWER, spacing
 from benchmark.surface import sample_surface
 from methods.base import get_method
-from methods.fitting import weights_to_bytes
 from methods.knn_network import KNN_BUDGETS
-from methods.knn_training import KNNTrainResult, training_shapes
+from methods.knn_training import training_shapes
 import methods.gifs as gifs
 from methods.gifs_extraction import (CORNER_PAIRS, CORNERS, CUBE_EDGE_AXES, CUBE_EDGES, PARTITIONS, corner_signs,
                                      extract_gifs_mesh)
 from methods.gifs_network import make_gifs_network, voxelize_cloud
+from tests.learned_checks import check_training_is_deterministic, check_weights_round_trip
 
 pytestmark = pytest.mark.usefixtures("torch_threads")
 
@@ -160,18 +160,7 @@ def _small_network(seed: int = 0):
 
 
 def test_weights_round_trip_and_bad_weights_are_refused():
-    method = get_method("gifs")
-    net = _small_network()
-    data = method.network_to_bytes(KNNTrainResult(model=net, losses=np.zeros(1), seconds=1.0, steps=1,
-                                                  samples_per_s=1.0, final_loss=0.5), TINY)
-    loaded = method.network_from_bytes(data, device="cpu")
-    assert loaded.config == net.config
-    for key, value in net.state_dict().items():
-        torch.testing.assert_close(loaded.state_dict()[key], value)
-    with pytest.raises(ValueError, match="GIFS weights refused"):
-        method.network_from_bytes(data[: len(data) // 2], device="cpu")
-    with pytest.raises(ValueError, match="of method 'poco', expected 'gifs'"):
-        method.network_from_bytes(weights_to_bytes(net, {}, "poco", 0.5), device="cpu")
+    check_weights_round_trip(get_method("gifs"), _small_network(), TINY, "GIFS weights", "poco")
 
 
 def test_reconstruct_is_deterministic_and_refuses_an_empty_cloud():
@@ -195,13 +184,7 @@ def test_reconstruct_is_deterministic_and_refuses_an_empty_cloud():
 def test_training_is_deterministic(monkeypatch):
     short = dataclasses.replace(gifs.GIFS_CONFIGS["tiny"], steps=3, log_every=1)
     monkeypatch.setitem(gifs.GIFS_CONFIGS, "tiny", short)
-    method = get_method("gifs")
-    shapes = training_shapes(2)
-    a = method.train_network(shapes, TINY, seed=5)
-    b = method.train_network(shapes, TINY, seed=5)
-    np.testing.assert_array_equal(a.losses, b.losses)
-    for key, value in a.model.state_dict().items():
-        torch.testing.assert_close(b.model.state_dict()[key], value, rtol=0, atol=0)
+    check_training_is_deterministic(get_method("gifs"), TINY)
 
 
 @pytest.mark.slow

@@ -23,12 +23,12 @@ import trimesh
 
 from benchmark.surface import sample_surface
 from methods.base import get_method
-from methods.fitting import weights_to_bytes
 from methods.knn_network import KNN_BUDGETS, knn_neighbourhoods
-from methods.knn_training import KNNTrainResult, training_shapes
+from methods.knn_training import training_shapes
 import methods.poco as poco
 from methods.poco_network import (AttentionDecoder, FKAConv, batch_structures, cloud_structure, make_poco_network,
                                   quantized_subsample)
+from tests.learned_checks import check_training_is_deterministic, check_weights_round_trip
 
 pytestmark = pytest.mark.usefixtures("torch_threads")
 
@@ -96,18 +96,7 @@ def test_decoder_attention_weights_are_nonnegative_and_sum_to_one():
 
 
 def test_weights_round_trip_and_bad_weights_are_refused():
-    method = get_method("poco")
-    net = _small_network()
-    data = method.network_to_bytes(KNNTrainResult(model=net, losses=np.zeros(1), seconds=1.0, steps=1,
-                                                  samples_per_s=1.0, final_loss=0.5), TINY)
-    loaded = method.network_from_bytes(data, device="cpu")
-    assert loaded.config == net.config
-    for key, value in net.state_dict().items():
-        torch.testing.assert_close(loaded.state_dict()[key], value)
-    with pytest.raises(ValueError, match="POCO weights refused"):
-        method.network_from_bytes(data[: len(data) // 2], device="cpu")
-    with pytest.raises(ValueError, match="of method 'occ-knn', expected 'poco'"):
-        method.network_from_bytes(weights_to_bytes(net, {}, "occ-knn", 0.5), device="cpu")
+    check_weights_round_trip(get_method("poco"), _small_network(), TINY, "POCO weights", "occ-knn")
 
 
 def test_reconstruct_is_deterministic_and_refuses_an_empty_cloud():
@@ -126,13 +115,7 @@ def test_reconstruct_is_deterministic_and_refuses_an_empty_cloud():
 def test_training_is_deterministic(monkeypatch):
     short = dataclasses.replace(poco.POCO_CONFIGS["tiny"], steps=3, log_every=1)
     monkeypatch.setitem(poco.POCO_CONFIGS, "tiny", short)
-    method = get_method("poco")
-    shapes = training_shapes(2)
-    a = method.train_network(shapes, TINY, seed=5)
-    b = method.train_network(shapes, TINY, seed=5)
-    np.testing.assert_array_equal(a.losses, b.losses)
-    for key, value in a.model.state_dict().items():
-        torch.testing.assert_close(b.model.state_dict()[key], value, rtol=0, atol=0)
+    check_training_is_deterministic(get_method("poco"), TINY)
 
 
 @pytest.mark.slow
