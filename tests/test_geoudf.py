@@ -198,6 +198,7 @@ def test_training_is_deterministic(monkeypatch):
     check_training_is_deterministic(get_method("geoudf"), TINY)
 
 
+@pytest.mark.slow
 @pytest.mark.learned
 def test_tiny_training_reconstructs_a_sphere(measured):
     from benchmark.metrics import evaluate
