@@ -264,8 +264,10 @@ class LearnedPointCloudMethod(PointCloudMethod):
     ``targets`` torch tensors).
 
     A method with its own architecture and training implements :meth:`train_network`,
-    :meth:`network_to_bytes` and :meth:`network_from_bytes`, and names the modules of its training
-    code in ``training_modules`` (part of the weights' cache key, with the method's own module).
+    :meth:`network_to_bytes` and :meth:`network_from_bytes` (or subclasses
+    :class:`methods.own_network.OwnNetworkMethod`, which stores its config with the weights), and
+    names the modules of its training code in ``training_modules`` (part of the weights' cache key,
+    with the method's own module).
     """
 
     learned: ClassVar[bool] = True

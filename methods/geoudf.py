@@ -56,7 +56,6 @@ of their 10 nearest points (pymeshlab's ``compute_normal_for_point_clouds``,
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from dataclasses import dataclass
 from typing import Callable, Sequence
@@ -70,15 +69,15 @@ from benchmark.grid import spacing
 from benchmark.params import Param, check_fields, setting
 from benchmark.surface import sample_surface
 from benchmark.timing import stage
-from methods.base import Extraction, LearnedPointCloudMethod, register_method
+from methods.base import Extraction, register_method
 from methods.device import get_device, seeded_generator
-from methods.fitting import refused_weights_from_bytes, weights_to_bytes
 from methods.geoudf_extraction import CORNERS, edge_marching_cubes
 from methods.geoudf_network import GeoUDFNetwork, make_geoudf_network, nearest_indices
 from methods.knn_network import knn_neighbourhoods
 from methods.knn_query import band_points, nearest_distance
 from methods.knn_training import KNNTrainResult, get_knn_budget
 from methods.meshlab import current_mesh, oriented_point_set
+from methods.own_network import OwnNetworkMethod
 from methods.query import point_inputs
 from methods.training_loop import FittingError, run_steps
 
@@ -436,7 +435,7 @@ def udf_and_gradient(model: GeoUDFNetwork, dense: np.ndarray, normals: np.ndarra
 
 
 @register_method
-class GeoUDFMethod(LearnedPointCloudMethod):
+class GeoUDFMethod(OwnNetworkMethod):
     name = "geoudf"
     description = "GeoUDF: LGR-Net upsampling with normals, geometry-guided UDF and gradient, edge-based marching cubes"
     network_kind = "point"
@@ -444,6 +443,8 @@ class GeoUDFMethod(LearnedPointCloudMethod):
     extractor = "E-MC"
     display_order = 160
     color = "#24347f"
+    network_label = "GeoUDF"
+    build_network = staticmethod(make_geoudf_network)
     training_modules = ("methods.geoudf_network", "methods.knn_training")
     parameters = {
         "band": Param(2.0, "grid points within this many h of an upsampled point get the network's UDF", gt=0),
@@ -457,23 +458,14 @@ class GeoUDFMethod(LearnedPointCloudMethod):
     def train_network(self, shapes, budget, seed, device=None, progress=None) -> KNNTrainResult:
         return train_geoudf(self, shapes, budget, seed=seed, device=device, progress=progress)
 
-    def network_to_bytes(self, trained: KNNTrainResult, budget) -> bytes:
-        budget = get_knn_budget(budget)
-        return weights_to_bytes(trained.model, {"knn_budget": budget.to_dict(),
-                                                "geoudf": dataclasses.asdict(geoudf_config(budget))},
-                                self.name, trained.final_loss)
-
-    def network_from_bytes(self, data: bytes, device=None) -> GeoUDFNetwork:
-        return refused_weights_from_bytes(data, make_geoudf_network, device, self.name, what="GeoUDF weights")
+    def architecture(self, budget):
+        return geoudf_config(budget)
 
     def reconstruct(self, points, N, device=None, seed=0, model=None) -> Extraction:
-        if model is None:
-            raise ValueError("geoudf reconstructs with a trained network: none given")
+        model, device = self.network_on_device(model, device)
         points = self.checked_points(points)
         if len(points) < model.lgr.knn:
             raise ValueError(f"geoudf: {len(points)} points, fewer than LGR-Net's {model.lgr.knn} neighbours")
-        device = get_device(device)
-        model = model.to(device).eval()
         h = spacing(N)
         if self.params["upsample"]:
             with stage("upsample"):

@@ -33,7 +33,6 @@ Reconstruction (:meth:`GIFSMethod.reconstruct`), on the run's grid (N points per
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
@@ -42,15 +41,15 @@ import torch
 
 from benchmark.grid import LOWER, spacing
 from benchmark.params import Param, check_fields, setting
-from benchmark.sampler import GROUPS, group_counts
+from benchmark.sampler import group_counts
 from benchmark.timing import stage
-from methods.base import Extraction, LearnedPointCloudMethod, register_method
+from methods.base import Extraction, register_method
 from methods.device import get_device, seeded_generator
-from methods.fitting import refused_weights_from_bytes, weights_to_bytes
 from methods.gifs_extraction import CORNER_PAIRS, CORNERS, extract_gifs_mesh
 from methods.gifs_network import GIFSNetwork, make_gifs_network, voxelize_cloud
 from methods.knn_query import band_points
 from methods.knn_training import KNNTrainResult, TrainingPools, get_knn_budget
+from methods.own_network import OwnNetworkMethod
 from methods.training_loop import run_steps
 
 __all__ = ["GIFSConfig", "GIFS_CONFIGS", "gifs_config", "draw_pairs", "draw_batch", "gifs_loss", "train_gifs",
@@ -270,7 +269,7 @@ def refine_vertices(model: GIFSNetwork, grids: list[torch.Tensor], vertices: np.
 
 
 @register_method
-class GIFSMethod(LearnedPointCloudMethod):
+class GIFSMethod(OwnNetworkMethod):
     name = "gifs"
     description = "GIFS: IF-Net voxel features -> UDF + pair separation flags, per-cube signs, marching cubes"
     network_kind = "segment"
@@ -279,6 +278,8 @@ class GIFSMethod(LearnedPointCloudMethod):
     extractor = "GIFS marching cubes"
     display_order = 170
     color = "#d4a017"
+    network_label = "GIFS"
+    build_network = staticmethod(make_gifs_network)
     training_modules = ("methods.gifs_network", "methods.knn_training")
     parameters = {
         "band": Param(3.0, "cubes with a corner within this many h of an input point are candidates", gt=0),
@@ -299,21 +300,12 @@ class GIFSMethod(LearnedPointCloudMethod):
     def train_network(self, shapes, budget, seed, device=None, progress=None) -> KNNTrainResult:
         return train_gifs(self, shapes, budget, seed=seed, device=device, progress=progress)
 
-    def network_to_bytes(self, trained: KNNTrainResult, budget) -> bytes:
-        budget = get_knn_budget(budget)
-        return weights_to_bytes(trained.model, {"knn_budget": budget.to_dict(),
-                                                "gifs": dataclasses.asdict(gifs_config(budget))},
-                                self.name, trained.final_loss)
-
-    def network_from_bytes(self, data: bytes, device=None) -> GIFSNetwork:
-        return refused_weights_from_bytes(data, make_gifs_network, device, self.name, what="GIFS weights")
+    def architecture(self, budget):
+        return gifs_config(budget)
 
     def reconstruct(self, points, N, device=None, seed=0, model=None) -> Extraction:
-        if model is None:
-            raise ValueError("gifs reconstructs with a trained network: none given")
+        model, device = self.network_on_device(model, device)
         points = self.checked_points(points)
-        device = get_device(device)
-        model = model.to(device).eval()
         h = spacing(N)
         with stage("encode"):
             grids = encode_cloud(model, points, device)

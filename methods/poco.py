@@ -31,7 +31,6 @@ Reconstruction (:meth:`POCOMethod.reconstruct`):
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
@@ -43,14 +42,14 @@ from benchmark.grid import LOWER, spacing
 from benchmark.params import Param, check_fields, setting
 from benchmark.sampler import GROUPS
 from benchmark.timing import stage
-from methods.base import Extraction, LearnedPointCloudMethod, register_method
+from methods.base import Extraction, register_method
 from methods.device import get_device, seeded_generator
-from methods.fitting import refused_weights_from_bytes, weights_to_bytes
 from methods.knn_network import knn_neighbourhoods
 from methods.knn_query import band_points
 from methods.knn_training import KNNTrainResult, TrainingPools, get_knn_budget
 from methods.marching_cubes import marching_cubes_grid
 from methods.occ_knn import far_occupancy
+from methods.own_network import OwnNetworkMethod
 from methods.poco_network import POCONetwork, batch_structures, cloud_structure, make_poco_network
 from methods.query import point_inputs
 from methods.training_loop import run_steps
@@ -295,7 +294,7 @@ def refine_vertices(vertices: np.ndarray, volume: np.ndarray, known: np.ndarray,
 
 
 @register_method
-class POCOMethod(LearnedPointCloudMethod):
+class POCOMethod(OwnNetworkMethod):
     name = "poco"
     description = "POCO: FKAConv point-convolution latents + attention decoder to occupancy, marching cubes"
     network_kind = "point"
@@ -303,6 +302,8 @@ class POCOMethod(LearnedPointCloudMethod):
     extractor = "marching cubes"
     display_order = 180
     color = "#5b8c2a"
+    network_label = "POCO"
+    build_network = staticmethod(make_poco_network)
     training_modules = ("methods.poco_network", "methods.knn_training")
     parameters = {
         "band": Param(3.0, "grid points within this many h of an input point are queried", gt=0),
@@ -324,23 +325,14 @@ class POCOMethod(LearnedPointCloudMethod):
     def train_network(self, shapes, budget, seed, device=None, progress=None) -> KNNTrainResult:
         return train_poco(self, shapes, budget, seed=seed, device=device, progress=progress)
 
-    def network_to_bytes(self, trained: KNNTrainResult, budget) -> bytes:
-        budget = get_knn_budget(budget)
-        return weights_to_bytes(trained.model, {"knn_budget": budget.to_dict(),
-                                                "poco": dataclasses.asdict(poco_config(budget))},
-                                self.name, trained.final_loss)
-
-    def network_from_bytes(self, data: bytes, device=None) -> POCONetwork:
-        return refused_weights_from_bytes(data, make_poco_network, device, self.name, what="POCO weights")
+    def architecture(self, budget):
+        return poco_config(budget)
 
     def reconstruct(self, points, N, device=None, seed=0, model=None) -> Extraction:
-        if model is None:
-            raise ValueError("poco reconstructs with a trained network: none given")
+        model, device = self.network_on_device(model, device)
         points = self.checked_points(points)
         if len(points) < model.decoder_k:
             raise ValueError(f"poco: {len(points)} points, fewer than the decoder's {model.decoder_k} neighbours")
-        device = get_device(device)
-        model = model.to(device).eval()
         with stage("latents"):
             latents, passes = point_latents(model, points, self.params["views"], np.random.default_rng(seed), device)
 
