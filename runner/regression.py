@@ -175,15 +175,25 @@ def _executor_args(workers: int) -> tuple[str, ...]:
 
 
 def measure_spread(tier: Tier, data_dir: Path, work_dir: Path, seeds: tuple[int, ...],
-                   workers: int, paths: tuple[str, ...] = FLOAT_PATHS) -> pd.DataFrame:
-    """The tier's jobs at every seed of ``seeds`` on every CPU float path of ``paths`` (one run per
-    path): the per-job results with a ``float_path`` column, the data its tolerances are derived from."""
+                   workers: int, paths: tuple[str, ...] = FLOAT_PATHS, methods: list[str] | None = None) -> pd.DataFrame:
+    """The tier's jobs (of ``methods``, default the tier's) at every seed of ``seeds`` on every CPU
+    float path of ``paths`` (one run per path): the per-job results with a ``float_path`` column, the
+    data its tolerances are derived from. Each path's run has its own cache folder under
+    ``work_dir``: the cache keys of fitted weights and meshes do not name the float path, so a shared
+    cache would hand every path the first path's fits."""
     frames = []
     for path in paths:
-        results = baseline_columns(run_tier(tier, data_dir, work_dir / path, workers,
-                                            extra_args=("--seed", *map(str, seeds)), env=float_path_environment(path)))
+        args = ("--cache-dir", str(work_dir / path / "cache"), "--seed", *map(str, seeds))
+        results = baseline_columns(run_tier(tier, data_dir, work_dir / path, workers, methods=methods,
+                                            extra_args=args, env=float_path_environment(path)))
         frames.append(results.assign(float_path=path))
     return pd.concat(frames, ignore_index=True)
+
+
+def merge_spread(committed: pd.DataFrame, measured: pd.DataFrame) -> pd.DataFrame:
+    """``committed`` with the rows of every method that ``measured`` holds replaced by its rows."""
+    kept = committed[~committed.method.isin(set(measured.method))]
+    return pd.concat([kept, measured], ignore_index=True)
 
 
 def _within(now: float, base: float, tol: Tolerance) -> bool:
@@ -325,14 +335,15 @@ def main(argv: list[str] | None = None) -> int:
                         help="parallel jobs, one torch thread each (default: the cores, here %(default)s)")
     parser.add_argument("--methods", nargs="+", default=None,
                         help="with --update-baselines: the methods the tier's baseline keeps (default: every "
-                             "available method); otherwise those of the committed baseline")
+                             "available method); with --measure-spread: the methods re-measured (the others' "
+                             "rows of spread.csv are kept); otherwise those of the committed baseline")
     parser.add_argument("--measure-spread", type=int, nargs="+", metavar="SEED", default=None,
                         help="instead of comparing: run the tier at these seeds on every CPU float path "
                              f"({', '.join(FLOAT_PATHS)}) and write reports/baselines/<tier>/spread.csv")
     args = parser.parse_args(argv)
-    if args.methods and not args.update_baselines:
-        parser.error("--methods chooses a baseline's methods: it needs --update-baselines (a comparison "
-                     "runs the methods of the committed baseline)")
+    if args.methods and not (args.update_baselines or args.measure_spread):
+        parser.error("--methods chooses a baseline's methods or the methods a spread re-measures: it needs "
+                     "--update-baselines or --measure-spread (a comparison runs the methods of the committed baseline)")
 
     if not args.data_dir.is_dir():
         print(f"regression skipped: {args.data_dir} is absent (the ABC subset lives in ../shared/data/abc)")
@@ -351,15 +362,21 @@ def main(argv: list[str] | None = None) -> int:
     if args.measure_spread:
         for tier in tiers:
             spread = measure_spread(tier, args.data_dir, work / f"spread-{tier.name}", tuple(args.measure_spread),
-                                    args.workers)
+                                    args.workers, methods=args.methods)
             dest = BASELINES / tier.name / "spread.csv"
+            if args.methods and dest.is_file():
+                spread = merge_spread(pd.read_csv(dest), spread)
             spread.sort_values(["float_path", *KEY]).to_csv(dest, index=False, float_format="%.9g")
             print(f"spread of tier '{tier.name}' ({len(spread)} jobs) written to {dest.relative_to(REPO)}")
         return 0
     for tier in tiers:
         try:
-            results = baseline_columns(run_tier(tier, args.data_dir, work, args.workers,
-                                                methods=(args.methods or available_methods()) if args.update_baselines else None))
+            if args.update_baselines:  # fresh fits: a cached one may come from another float path
+                results = baseline_columns(run_tier(tier, args.data_dir, work, args.workers,
+                                                    methods=args.methods or available_methods(),
+                                                    extra_args=("--cache-dir", str(work / "cache"))))
+            else:
+                results = baseline_columns(run_tier(tier, args.data_dir, work, args.workers))
         except RegressionError as exc:
             print(f"regression tier '{tier.name}': {exc}", file=sys.stderr)
             failed = True

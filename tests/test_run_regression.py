@@ -7,7 +7,8 @@ import pandas as pd
 import pytest
 
 from runner.regression import (BASELINES, SPREAD_MARGIN, TIERS, RegressionError, Tier, Tolerance, compare,
-                                      mean_tolerances_of, read_list, spread_tolerances, verify_manifest)
+                                      mean_tolerances_of, measure_spread, merge_spread, read_list,
+                                      spread_tolerances, verify_manifest)
 from tests.conftest import SHARED_DATA, requires_shared
 
 
@@ -45,6 +46,44 @@ def test_spread_tolerances_are_the_margin_times_the_largest_deviation_of_a_runs_
     assert tol.at["sals", "cd"] == pytest.approx(SPREAD_MARGIN * 0.0005)
     assert tol.at["sdf", "ecd"] == pytest.approx(SPREAD_MARGIN * 0.002)
     assert tol.at["sdf", "cd"] == 0.0 and tol.at["sals", "ecd"] == 0.0
+
+
+def test_a_spread_measured_for_one_method_replaces_only_that_methods_rows():
+    committed = spread()
+    remeasured = spread(cd_by_seed=((0, 0.003), (1, 0.0031))).query("method == 'sals'")
+    merged = merge_spread(committed, remeasured)
+    pd.testing.assert_frame_equal(merged[merged.method == "sdf"].reset_index(drop=True),
+                                  committed[committed.method == "sdf"].reset_index(drop=True))
+    assert sorted(merged[merged.method == "sals"].cd.unique()) == [0.003, 0.0031]
+    assert len(merged) == len(committed) - 12 + 8  # sals: 2 paths x 3 seeds x 2 shapes out, 2 x 2 x 2 in
+
+
+def test_each_float_path_of_a_spread_fits_into_its_own_cache(tmp_path, monkeypatch):
+    runs = []
+
+    def run_tier(tier, data_dir, out_dir, workers, extra_args=(), env=None, methods=None):
+        runs.append((extra_args, env.get("ATEN_CPU_CAPABILITY")))
+        return frame()
+
+    monkeypatch.setattr("runner.regression.run_tier", run_tier)
+    spread = measure_spread(TIERS["neural"], tmp_path, tmp_path / "work", (0, 1), 2, paths=("default", "avx2"))
+    caches = [args[args.index("--cache-dir") + 1] for args, _ in runs]
+    assert caches == [str(tmp_path / "work" / "default" / "cache"), str(tmp_path / "work" / "avx2" / "cache")]
+    assert all(args[-3:] == ("--seed", "0", "1") for args, _ in runs) and [c for _, c in runs] == ["default", "avx2"]
+    assert sorted(spread.float_path.unique()) == ["avx2", "default"]
+
+
+def test_new_baselines_come_from_fresh_fits_in_their_own_cache(tmp_path, monkeypatch):
+    from runner import regression
+
+    runs, written = [], []
+    monkeypatch.setattr(regression, "verify_manifest", lambda data_dir: [])
+    monkeypatch.setattr(regression, "run_tier", lambda tier, data_dir, out_dir, workers, extra_args=(), env=None,
+                        methods=None: runs.append((extra_args, methods)) or frame())
+    monkeypatch.setattr(regression, "update_baselines", lambda tier, results, work: written.append(tier.name))
+    assert regression.main(["--tier", "neural", "--update-baselines", "--methods", "sals", "sdf",
+                            "--data-dir", str(tmp_path), "--work-dir", str(tmp_path / "work")]) == 0
+    assert runs == [(("--cache-dir", str(tmp_path / "work" / "cache")), ["sals", "sdf"])] and written == ["neural"]
 
 
 def test_the_mean_tier_ignores_per_job_noise_that_averages_out_and_catches_a_moved_mean():
