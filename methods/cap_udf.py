@@ -290,6 +290,8 @@ class CAPUDFMethod(PointCloudMethod):
     description = ("CAP-UDF: a per-shape UDF MLP pulled onto the raw cloud (field consistency, progressive "
                    "densification), gradient-sign marching cubes")
     extractor = "CAP-UDF gradient-sign marching cubes"
+    table_note = ("cap-udf optimises its own MLP per shape at its own budget (cap-udf.budget); the budget values "
+                  "of the protocol line describe the K-NN network of sals-knn, udf-knn and occ-knn.")
     display_order = 150
     color = "#b5179e"
     parameters = {

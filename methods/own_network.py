@@ -29,6 +29,13 @@ class OwnNetworkMethod(LearnedPointCloudMethod):
     network_label: ClassVar[str] = ""
     build_network: ClassVar[Callable[..., torch.nn.Module]]
 
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        if cls.network_label and "table_note" not in cls.__dict__:
+            cls.table_note = (f"{cls.name} trains {cls.network_label}'s own network at the budget's scale (its "
+                              f"configuration is stored with its weights); the budget values of the protocol "
+                              f"line describe the K-NN network of sals-knn, udf-knn and occ-knn.")
+
     def architecture(self, budget):
         """The method's own config dataclass at ``budget`` (a ``KNNBudget``)."""
         raise NotImplementedError
