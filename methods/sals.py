@@ -7,7 +7,10 @@ samples' segments: o (0/1) and s. Loss::
     10 * mean_{o = 1} |s_hat - s|  +  BCE(o_hat, o)
 
 (BCE computed from the logit, ``binary_cross_entropy_with_logits``: the same value, stable).
-Extraction: E-DC (``methods.edc.edc_extract``) on the edges with o_hat > ``o_threshold`` (0.1).
+Extraction: E-DC (``methods.edc.edc_extract``) on the edges with o_hat > ``o_threshold``: 0.5, the
+decision point of the BCE-trained o (the paper evaluates at 0.1, ``PAPER_O_THRESHOLD``, a trade of
+false hits for recall that suits its GPU-budget network; at the ``cpu`` budget o is blurrier and 0.1
+keeps edges next to the surface: spurious faces and false sharp edges; docs/PROTOCOL.md).
 Face rule ``faces``: ``fan4`` (the paper's, default), ``quad2`` or ``fan4-adaptive`` (the fan except
 where its edge point is off the plane of the 4 cell vertices, as on walls thinner than a cell, where
 the fans fold into false sharp edges: 2 triangles there; ABC 00014489 at 128^3, oracle: EF1 0.773 ->
@@ -44,7 +47,9 @@ from methods.base import Extraction, Method, median_angle_deg, register_method
 #: Weight of the s term.
 S_WEIGHT = 10.0
 #: The paper's hit threshold of o_hat.
-DEFAULT_O_THRESHOLD = 0.1
+PAPER_O_THRESHOLD = 0.1
+#: The default hit threshold: o_hat's own decision point (BCE).
+DEFAULT_O_THRESHOLD = 0.5
 #: Default length of the optional grid-edge-like training segments: a 128^3 grid edge, 2 / 127.
 EDGE_LENGTH = 2.0 / 127.0
 
@@ -102,7 +107,7 @@ def calibrated_o_threshold(model, fields, N: int, rng: np.random.Generator, devi
     or not) and the network gives its o logit. F1 = 2 TP / (2 TP + FP + FN) counts no true negatives,
     so the far edges of the band do not move it. Returns the probability halfway (in logits) between
     the last edge kept and the next, and facts: the threshold, the F1 there and at the paper's 0.1,
-    the labelled edges and their hits. With no hit among them the paper's threshold stays.
+    the labelled edges and their hits. With no hit among them the default threshold stays.
     """
     from benchmark.grid import LOWER, edge_endpoints, ijk_axis_to_edge_index
     from benchmark.surface import sample_surface
@@ -128,7 +133,7 @@ def calibrated_o_threshold(model, fields, N: int, rng: np.random.Generator, devi
     best = int(np.argmax(f1))
     cut = logits[order[best]] if best + 1 == len(order) else 0.5 * (logits[order[best]] + logits[order[best + 1]])
     threshold = float(expit(cut))
-    paper = logits > _logit(DEFAULT_O_THRESHOLD)
+    paper = logits > _logit(PAPER_O_THRESHOLD)
     paper_tp = int((paper & hit).sum())
     return threshold, {**facts, "o_threshold_calibrated": threshold, "o_calibration_f1": float(f1[best]),
                        "o_calibration_f1_paper": 2 * paper_tp / (int(paper.sum()) + positives)}
@@ -153,7 +158,8 @@ class SALSMethod(Method):
     color = "#e4572e"
     components = ("flags", "s", "normals")
     parameters = {
-        "o_threshold": Param(DEFAULT_O_THRESHOLD, "an edge is intersected when o_hat > this", gt=0, lt=1, neural_only=True),
+        "o_threshold": Param(DEFAULT_O_THRESHOLD, "an edge is intersected when o_hat > this (the paper: 0.1)", gt=0,
+                             lt=1, neural_only=True),
         "normals": Param(True, "E-DC vertices from the QEF with autograd normals (else mass points)"),
         "qef_cutoff": Param(0.1, "eigenvalues of A^T A below this are dropped in the QEF", ge=0),
         "clamp_to_cell": Param(False, "clip each QEF vertex to its cell (off in the paper)"),

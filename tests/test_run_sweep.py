@@ -214,11 +214,11 @@ def test_a_k_sweep_runs_the_jobs_of_networks_trained_early_while_the_last_one_tr
 def test_a_parameter_only_the_neural_query_reads_gives_one_ceiling_job(tmp_path):
     from runner.tasks import build_tasks
 
-    args = build_parser().parse_args(["--methods", "sals", "--limit", "1", "--sweep", "sals.o_threshold=0.1,0.5",
+    args = build_parser().parse_args(["--methods", "sals", "--limit", "1", "--sweep", "sals.o_threshold=0.1,0.3",
                                       "--sweep", "sals.normals=yes,no", "--out", str(tmp_path / "r")])
     floors, jobs = build_tasks(resolve(configure(args, tmp_path / "r")))
     neural = [j for j in jobs if j.mode == "neural"]
     oracle = [j for j in jobs if j.mode == "oracle"]
     assert len(neural) == 4 and len(oracle) == 2  # the exact field has no o: only normals splits the ceiling
     assert [j.sweep for j in oracle] == [{"sals.normals": True}, {"sals.normals": False}]
-    assert all(j.params["o_threshold"] == 0.1 for j in oracle)  # the default, not a swept value
+    assert all(j.params["o_threshold"] == 0.5 for j in oracle)  # the default, not a swept value
