@@ -1,12 +1,23 @@
 """Checks every learned point-cloud method with its own network passes (shared by their tests): its
-network bytes round-trip and bad bytes are refused in one line; two trainings at one seed are equal."""
+network bytes round-trip and bad bytes are refused in one line; two trainings at one seed are equal.
+Also their test input: a point cloud on a sphere."""
 
 import numpy as np
 import pytest
 import torch
+import trimesh
+
+from benchmark.surface import sample_surface
 
 from methods.fitting import weights_to_bytes
 from methods.knn_training import KNNTrainResult, training_shapes
+
+
+def sphere_cloud(n: int, radius: float, seed: int = 0) -> np.ndarray:
+    """``n`` area-uniform points (float64) on a level-4 icosphere of ``radius`` about the origin."""
+    sphere = trimesh.creation.icosphere(4, radius=radius)
+    points, _ = sample_surface(np.asarray(sphere.vertices), np.asarray(sphere.faces), n, np.random.default_rng(seed))
+    return points
 
 
 def check_weights_round_trip(method, net: torch.nn.Module, budget, what: str, foreign_method: str) -> None:

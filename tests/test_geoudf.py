@@ -30,7 +30,6 @@ import torch
 import trimesh
 
 from benchmark.grid import grid_points, spacing
-from benchmark.surface import sample_surface
 from methods.base import get_method
 from methods.knn_network import KNN_BUDGETS
 from methods.knn_training import training_shapes
@@ -38,7 +37,7 @@ import methods.geoudf as geoudf
 from methods.geoudf_extraction import (CELL_EDGES, CORNER_PAIRS, CORNERS, crossing_pairs, cube_labels, edge_marching_cubes,
                                        edge_points, triangle_table)
 from methods.geoudf_network import GeometryGuidedUDF, make_geoudf_network, uv_sets
-from tests.learned_checks import check_training_is_deterministic, check_weights_round_trip
+from tests.learned_checks import check_training_is_deterministic, check_weights_round_trip, sphere_cloud
 
 pytestmark = pytest.mark.usefixtures("torch_threads")
 
@@ -51,9 +50,7 @@ DENSE_RADIUS_BOUND = 0.005
 
 
 def _sphere_cloud(n: int, seed: int = 0) -> np.ndarray:
-    sphere = trimesh.creation.icosphere(4, radius=SPHERE_RADIUS)
-    points, _ = sample_surface(np.asarray(sphere.vertices), np.asarray(sphere.faces), n, np.random.default_rng(seed))
-    return points
+    return sphere_cloud(n, SPHERE_RADIUS, seed)
 
 
 def _small_network(seed: int = 0):

@@ -21,14 +21,13 @@ import pytest
 import torch
 import trimesh
 
-from benchmark.surface import sample_surface
 from methods.base import get_method
 from methods.knn_network import KNN_BUDGETS, knn_neighbourhoods
 from methods.knn_training import training_shapes
 import methods.poco as poco
 from methods.poco_network import (AttentionDecoder, FKAConv, batch_structures, cloud_structure, make_poco_network,
                                   quantized_subsample)
-from tests.learned_checks import check_training_is_deterministic, check_weights_round_trip
+from tests.learned_checks import check_training_is_deterministic, check_weights_round_trip, sphere_cloud
 
 pytestmark = pytest.mark.usefixtures("torch_threads")
 
@@ -39,9 +38,7 @@ SPHERE_RADIUS_BOUND = 0.09
 
 
 def _cloud(n: int, seed: int = 0) -> np.ndarray:
-    sphere = trimesh.creation.icosphere(4, radius=SPHERE_RADIUS)
-    points, _ = sample_surface(np.asarray(sphere.vertices), np.asarray(sphere.faces), n, np.random.default_rng(seed))
-    return points.astype(np.float32)
+    return sphere_cloud(n, SPHERE_RADIUS, seed).astype(np.float32)
 
 
 def _small_network(seed: int = 0):
