@@ -209,3 +209,20 @@ class EdgeField:
         u, v = edge_endpoints(self.N, ids, dtype=np.float64)
         s = self.s[ids].astype(np.float64)[:, None]
         return ids, s * u + (1.0 - s) * v
+
+
+def point_inputs(N: int, ijk: np.ndarray) -> np.ndarray:
+    """Canonical coordinates (P, 3) float32 of integer grid indices ``ijk`` (P, 3)."""
+    return (LOWER + np.asarray(ijk, dtype=np.float64) * spacing(N)).astype(np.float32)
+
+
+def edge_inputs(N: int, edge_ids: np.ndarray | None = None) -> np.ndarray:
+    """Segment inputs ``[u, v]`` (E, 6) float32 of grid edges (flat ids; default all)."""
+    u, v = edge_endpoints(N, edge_ids, dtype=np.float32)
+    return np.concatenate([u, v], axis=1)
+
+
+def edges_in_points(N: int, mask: np.ndarray) -> np.ndarray:
+    """(E,) bool in flat edge order: both endpoints of the edge are in the point mask (N, N, N)."""
+    lower, upper = edge_endpoint_values(mask)
+    return lower & upper

@@ -8,7 +8,7 @@ One :class:`numpy.random.SeedSequence` per (shape, seed)::
 * ``sampler`` -> the ``numpy.random.Generator`` of the shared training sampler
   (:mod:`benchmark.sampler`): every method of a shape and seed sees the same samples.
 * ``fitting`` -> a 63-bit integer for ``torch.manual_seed`` and the batch-order generator
-  (:mod:`methods.fitting`): network initialisation and batch order.
+  (:mod:`methods.core.fitting`): network initialisation and batch order.
 * ``metrics`` -> the SeedSequence :func:`benchmark.metrics.evaluate` spawns its two sampling
   streams from (child 0: GT samples, child 1: prediction samples), so every prediction of a shape
   and the floor row are scored against the same GT samples.

@@ -6,16 +6,16 @@ whose endpoints change sign, normals from central differences of the SDF) on the
 benchmark.grid. Compares, at N = 64 and 128:
 
 * scikit-image ``marching_cubes`` on the SDF grid (the reference),
-* oracle E-DC (:func:`methods.edc.edc_extract`, steps 2, 4, 5; the field is given),
-* MeshUDF-style extraction (:func:`methods.meshudf.meshudf_extract`) on the UDF grid,
-* DualMesh-UDF (:func:`methods.dualmesh.dualmesh_extract`) on the UDF grid, with the analytic UDF
+* oracle E-DC (:func:`methods.extractors.edc.edc_extract`, steps 2, 4, 5; the field is given),
+* MeshUDF-style extraction (:func:`methods.extractors.meshudf.meshudf_extract`) on the UDF grid,
+* DualMesh-UDF (:func:`methods.extractors.dualmesh.dualmesh_extract`) on the UDF grid, with the analytic UDF
   and its gradient at its samples; ``main`` reports its time without those queries and the queries
   apart (in a run they are the network's, part of the extraction),
-* NDC (:mod:`methods.ndc`: its CNN on the cells that change sign, then dual contouring) on the SDF
+* NDC (:mod:`methods.extractors.ndc`: its CNN on the cells that change sign, then dual contouring) on the SDF
   grid, where NDC's published weights are found,
 * UNDC (the ``udf-ndc`` method: its two CNNs on the UDF grid, then dual contouring of the flagged
   edges), where its weights are found,
-* DCUDF (:func:`methods.dcudf.dcudf_extract`) on the UDF grid, the authors' r, the ``udf-dcudf``
+* DCUDF (:func:`methods.extractors.dcudf.dcudf_extract`) on the UDF grid, the authors' r, the ``udf-dcudf``
   method's default iterations, the analytic UDF and its gradient at the moving vertices; one round
   (its optimisation takes seconds to minutes), ``main`` reports it once per N with the queries apart.
 
@@ -34,12 +34,12 @@ import pytest
 from skimage.measure import marching_cubes
 
 from benchmark.grid import edge_endpoint_values, edge_endpoints, grid_points, spacing
-from methods.edc import edc_extract
-from methods.dcudf import authors_r, dcudf_extract
-from methods.dualmesh import dualmesh_extract
-from methods.meshudf import meshudf_extract
+from methods.extractors.edc import edc_extract
+from methods.extractors.dcudf import authors_r, dcudf_extract
+from methods.extractors.dualmesh import dualmesh_extract
+from methods.extractors.meshudf import meshudf_extract
 from methods.base import METHODS, get_method
-from methods.udf_dcudf import CPU_ITERATIONS
+from methods.fields.udf_dcudf import CPU_ITERATIONS
 
 
 def _box_sdf(p, lo, hi):

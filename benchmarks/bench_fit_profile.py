@@ -2,7 +2,7 @@
 
 Print the table (one torch thread, the *cpu* budget, medians of interleaved repetitions):
     .venv/bin/python -m benchmarks.bench_fit_profile [--threads 1] [--rounds 60] [--methods sals sdf udf bof]
-Compare whole steps with the network code of another commit (its ``methods/network.py``, batches
+Compare whole steps with the network code of another commit (its ``methods/core/network.py``, batches
 gathered by advanced indexing as that loop did), interleaved in one process:
     .venv/bin/python -m benchmarks.bench_fit_profile --against a46de88
 Steps per second of the machine, 2 one-thread processes side by side against one 2-thread process:
@@ -10,11 +10,11 @@ Steps per second of the machine, 2 one-thread processes side by side against one
 or as pytest-benchmark (one whole step per method):
     .venv/bin/pytest benchmarks/bench_fit_profile.py -o python_files='bench_*.py' --benchmark-enable -q
 
-Parts of one step of :func:`methods.fitting.fit` (each method's real loss and network, synthetic
+Parts of one step of :func:`methods.core.fitting.fit` (each method's real loss and network, synthetic
 targets of the right kind near the sphere |x| = 0.6, 1M training rows as in the budget), with
-denormal floats flushed to zero as in every fit (``methods.device.flush_denormals``):
+denormal floats flushed to zero as in every fit (``methods.core.device.flush_denormals``):
 
-* ``batch``: the step's row draw and :func:`methods.fitting.gather_rows` of inputs and targets.
+* ``batch``: the step's row draw and :func:`methods.core.fitting.gather_rows` of inputs and targets.
 * ``grid fwd`` / ``grid bwd``: the feature grid's lookup of the batch's points (2 per segment) with
   the gradient to the grid values, forward alone and the backward (fwd+bwd minus fwd), with a fixed
   upstream gradient.
@@ -41,9 +41,9 @@ import torch.nn.functional as F
 
 from benchmarks.bench_network import _interleaved, _sphere_data
 from methods.base import get_method
-from methods.device import flush_denormals
-from methods.fitting import BUDGETS, gather_rows, make_optimizer
-from methods.network import SEGMENT_SCALE, make_network
+from methods.core.device import flush_denormals
+from methods.core.fitting import BUDGETS, gather_rows, make_optimizer
+from methods.core.network import SEGMENT_SCALE, make_network
 
 METHODS = ("sals", "sdf", "udf", "bof")
 TARGETS = {"sals": ("o", "s"), "sdf": ("sdf",), "udf": ("udf", "grad"), "bof": ("occupancy",)}
@@ -107,7 +107,7 @@ class Profile:
         self.optimizer.step()
 
     def step(self):
-        """One whole step as :func:`methods.fitting.fit` runs it."""
+        """One whole step as :func:`methods.core.fitting.fit` runs it."""
         x, t = self.batch()
         self.optimizer.zero_grad(set_to_none=True)
         self.method.loss(self.method.predict(self.model, x), t).backward()
@@ -210,14 +210,14 @@ def test_fit_step(benchmark, method_name):
 
 
 def network_module_at(revision: str):
-    """``methods/network.py`` as of git ``revision``, loaded as a module of its own."""
+    """``methods/core/network.py`` as of git ``revision``, loaded as a module of its own."""
     import importlib.util
     import subprocess
     import sys
     import tempfile
     from pathlib import Path
 
-    source = subprocess.run(["git", "show", f"{revision}:methods/network.py"], capture_output=True, text=True,
+    source = subprocess.run(["git", "show", f"{revision}:methods/core/network.py"], capture_output=True, text=True,
                             check=True, cwd=Path(__file__).resolve().parents[1]).stdout
     path = Path(tempfile.mkdtemp()) / "network_at_revision.py"
     path.write_text(source)
@@ -295,7 +295,7 @@ def main(argv=None):
                         help="steps per second of CORES one-thread processes side by side against one process of "
                              "CORES threads")
     args = parser.parse_args(argv)
-    with flush_denormals():  # as every fit runs its steps (methods.training_loop.run_steps)
+    with flush_denormals():  # as every fit runs its steps (methods.core.training_loop.run_steps)
         _report(args)
 
 

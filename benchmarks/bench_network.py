@@ -9,7 +9,7 @@ or as pytest-benchmark:  .venv/bin/pytest benchmarks/bench_network.py -o python_
    -> 1) at batch 2,048 with torch's Softplus(100), the clamped Softplus and ReLU; AdamW step on an
    L1 sphere-SDF loss. Value equality of the activations is a test (tests/test_network.py).
 2. Grid lookup: the *cpu* budget's grid network (head 3 x 64) at batch 4,096 with levels 16/32/64
-   and 16/32/64/128, its trilinear gather (:func:`methods.network.trilinear`) against
+   and 16/32/64/128, its trilinear gather (:func:`methods.core.network.trilinear`) against
    ``torch.nn.functional.grid_sample`` (same values: :class:`GridSampleFeatureGrid`), with a first
    order loss (L1 SDF) and a second-order one (the UDF loss: L1 + cosine of the autograd input
    gradient, ``create_graph``).
@@ -31,8 +31,8 @@ import torch
 import torch.nn.functional as F
 
 from methods.base import METHODS, get_method
-from methods.fitting import BUDGETS, make_optimizer
-from methods.network import FeatureGrid, make_network
+from methods.core.fitting import BUDGETS, make_optimizer
+from methods.core.network import FeatureGrid, make_network
 
 NETS = {"paper": (9, 512, 4096), "quick": (5, 128, 2048)}
 ACTS = ("softplus", "softplus-clamped", "relu")

@@ -1,4 +1,4 @@
-"""Sparse vs dense grid queries at 128^3 (methods/query.py), and grid edges with shared endpoints.
+"""Sparse vs dense grid queries at 128^3 (methods/core/query.py), and grid edges with shared endpoints.
 
 Run the ratio table (interleaved, one process):  .venv/bin/python -m benchmarks.bench_query [N] [threads]
 SALS's query + normals against SDF's query on networks fitted at the *cpu* budget (one thread, medians
@@ -26,9 +26,10 @@ import numpy as np
 import pytest
 import torch
 
-from methods import query
-from methods.fitting import BUDGETS
-from methods.network import make_network
+from benchmark.grid import edge_inputs
+from methods.core import query
+from methods.core.fitting import BUDGETS
+from methods.core.network import make_network
 
 R = 0.6
 
@@ -74,7 +75,7 @@ def sparse_edges(N):
 def band_edges(N, width=0.05):
     """Flat ids of the grid edges whose midpoint lies within ``width`` of the sphere |x| = R (a surface
     band like the sparse query's), and the cpu budget's segment network with random grid values."""
-    u, v = query.edge_inputs(N).reshape(-1, 2, 3).transpose(1, 0, 2)
+    u, v = edge_inputs(N).reshape(-1, 2, 3).transpose(1, 0, 2)
     ids = np.flatnonzero(np.abs(np.linalg.norm((u + v) / 2, axis=1) - R) < width)
     net = make_network(6, 2, **BUDGETS["cpu"].network_config())
     with torch.no_grad():
@@ -84,7 +85,7 @@ def band_edges(N, width=0.05):
 
 
 def plain_edges(net, N, ids):
-    return query.evaluate(net, query.edge_inputs(N, ids))
+    return query.evaluate(net, edge_inputs(N, ids))
 
 
 def shared_endpoint_edges(net, N, ids):
@@ -141,7 +142,7 @@ def fitted_query_ratio(path, N: int = 128, budget: str = "cpu", rounds: int = 3)
     from benchmark.sampler import sample_training_data
     from datasets.io import load_shape
     from methods.base import get_method
-    from methods.fitting import fit, get_budget
+    from methods.core.fitting import fit, get_budget
 
     torch.set_num_threads(1)
     shape = load_shape(path)

@@ -6,7 +6,7 @@ one file under ``methods/`` and declares itself with :func:`register_method`; th
 calls :func:`get_method` and the interface below, so adding a method is adding one file.
 
 Data flow (one way): ``Shape`` -> shared ``Samples`` (benchmark.sampler) -> ``Method.training_targets``
-(from ``benchmark.fields.ExactFields``) -> shared fitting loop (methods.fitting) -> ``Method.neural_grid``
+(from ``benchmark.fields.ExactFields``) -> shared fitting loop (methods.core.fitting) -> ``Method.neural_grid``
 or ``Method.oracle_grid`` (the field on the grid the extractor needs) -> ``Method.extract`` ->
 ``Extraction`` (mesh in the canonical frame).
 
@@ -141,8 +141,8 @@ class Method:
         return np.ascontiguousarray(samples.segments.reshape(len(samples), 6), dtype=np.float32)
 
     def network_config(self, budget) -> dict:
-        """Keyword arguments of :func:`methods.network.make_network` for the network this method fits
-        under ``budget`` (a :class:`methods.fitting.Budget`); default: the budget's backbone,
+        """Keyword arguments of :func:`methods.core.network.make_network` for the network this method fits
+        under ``budget`` (a :class:`methods.core.fitting.Budget`); default: the budget's backbone,
         ``budget.network_config()``. A method with a network of its own (e.g. NGLOD's) returns it."""
         return budget.network_config()
 
@@ -254,8 +254,8 @@ class LearnedPointCloudMethod(PointCloudMethod):
     """A learned method of the ``reconstruct`` task: a network trained once across many shapes (the
     run layer caches it per training set, method, budget and code), then applied to a test cloud.
 
-    :class:`methods.knn_training.KNNTrainedMethod` trains the shared K-NN local network
-    (:mod:`methods.knn_network`). Its class attributes: ``network_kind`` ``'segment'`` (the network takes a
+    :class:`methods.pointcloud.knn.training.KNNTrainedMethod` trains the shared K-NN local network
+    (:mod:`methods.pointcloud.knn.network`). Its class attributes: ``network_kind`` ``'segment'`` (the network takes a
     segment (u, v) and the K nearest input points of its midpoint) or ``'point'`` (a point x and its K
     nearest input points); ``output_dim`` its outputs. Training samples and labels come from the
     shared sampler and the exact fields of each training shape, as for the encoding methods
@@ -265,7 +265,7 @@ class LearnedPointCloudMethod(PointCloudMethod):
 
     A method with its own architecture and training implements :meth:`train_network`,
     :meth:`network_to_bytes` and :meth:`network_from_bytes` (or subclasses
-    :class:`methods.own_network.OwnNetworkMethod`, which stores its config with the weights), and
+    :class:`methods.pointcloud.own_network.OwnNetworkMethod`, which stores its config with the weights), and
     names the modules of its training code in ``training_modules`` (part of the weights' cache key,
     with the method's own module).
     """
@@ -277,7 +277,7 @@ class LearnedPointCloudMethod(PointCloudMethod):
 
     def train_network(self, shapes: list, budget, seed: int, device=None, progress=None):
         """Train this method's network on ``shapes`` (:class:`datasets.Shape`) under ``budget`` (a
-        :class:`methods.knn_network.KNNBudget`: the training set's size and pools, the steps) from
+        :class:`methods.pointcloud.knn.network.KNNBudget`: the training set's size and pools, the steps) from
         ``seed``; ``progress(step=..., loss=...)`` now and then, with ``total=`` the step count when the
         method's schedule has its own (not ``budget.steps``). Returns an object with ``model``
         (eval mode), ``steps``, ``seconds`` (the step loop), ``samples_per_s`` and ``final_loss``."""
@@ -303,11 +303,12 @@ class LearnedPointCloudMethod(PointCloudMethod):
 
 
 def _import_method_modules() -> None:
-    """Import every module of the ``methods`` package once, so each file registers itself."""
+    """Import every module of the ``methods`` package and its sub-packages once, so each file
+    registers itself."""
     import methods
 
-    for info in pkgutil.iter_modules(methods.__path__):
-        importlib.import_module(f"methods.{info.name}")
+    for info in pkgutil.walk_packages(methods.__path__, prefix="methods."):
+        importlib.import_module(info.name)
 
 
 #: The method registry: name -> Method subclass, listed in display order.

@@ -186,7 +186,7 @@ def fit_code_digest(method) -> str:
     fitting loop, the sampler, the exact fields."""
     from methods.base import METHODS
 
-    return code_digest(METHODS.get(method.fit_name).__module__, "methods.fitting", "benchmark.sampler", "benchmark.fields")
+    return code_digest(METHODS.get(method.fit_name).__module__, "methods.core.fitting", "benchmark.sampler", "benchmark.fields")
 
 
 def extraction_code_digest(method) -> str:
@@ -220,13 +220,13 @@ class RunCaches:
     # -- weights ----------------------------------------------------------------------------
     def load_weights(self, method, key: str, device):
         """(model, final loss) from the cache, or None (absent or damaged: the caller fits)."""
-        from methods import fitting
+        from methods.core import fitting
 
         data = self._read(self._path("weights", method.fit_name, key, ".pt"), "weights")
         return None if data is None else fitting.model_from_bytes(data, device=device, method_name=method.fit_name)
 
     def save_weights(self, method, key: str, fit, budget) -> None:
-        from methods import fitting
+        from methods.core import fitting
 
         path = self._path("weights", method.fit_name, key, ".pt")
         if path is not None:

@@ -374,7 +374,7 @@ def auto_executor(config, tasks: int):
     """The default executor for ``tasks`` tasks (module docstring): process workers on a CPU, one per
     physical core (``config.workers`` if given, never more than the tasks) with ``config.threads`` (default
     1) torch threads each; the local executor for one task or a non-CPU device."""
-    from methods.device import get_device
+    from methods.core.device import get_device
 
     workers = min(int(config.workers or physical_cores()), int(tasks))
     if get_device().type != "cpu" or workers < 2:

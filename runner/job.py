@@ -7,7 +7,7 @@ field. It never branches on method names: everything method-specific goes throug
 
 Stages of a job (each timed by :class:`benchmark.timing.StageTimer` as ``<stage>_s``): ``load`` the
 shape; neural mode: ``sample`` (the shared sampler), ``label`` (``method.training_targets`` on the
-exact fields), ``fit`` (``methods.fitting.fit``, or cached weights), ``query`` (``method.neural_grid``);
+exact fields), ``fit`` (``methods.core.fitting.fit``, or cached weights), ``query`` (``method.neural_grid``);
 oracle mode: ``query`` (``method.oracle_grid`` on the exact fields); then ``extract``
 (``method.extract``) and ``metrics`` (``benchmark.metrics.evaluate`` against the GT). A job of the
 ``reconstruct`` task: ``load``, for a learned method ``network`` (its network, trained once across
@@ -119,7 +119,7 @@ class _Progress:
 
 def timer_sync(device) -> Callable[[], None]:
     """What a stage timer calls before reading the clock: wait for queued CUDA work."""
-    from methods.device import synchronize
+    from methods.core.device import synchronize
 
     return lambda: synchronize(device)
 
@@ -128,7 +128,7 @@ def _run(spec, progress: Callable | None, body: Callable) -> TaskResult:
     """Common frame of a task: result, timer, worker set-up, failure capture."""
     from runner.config import import_plugins
     from runner.provenance import package_versions
-    from methods.device import describe_device, get_device
+    from methods.core.device import describe_device, get_device
 
     result = TaskResult(kind=spec.kind, key=spec.key, spec=spec, started=now_iso(), host=socket.gethostname())
     report = _Progress(progress)
@@ -196,7 +196,7 @@ def _job_body(spec: JobSpec, shape, device, timer: StageTimer, result: TaskResul
     caches = RunCaches(spec.cache_dir, stats)
     weights_key = None
     if spec.mode == "neural":
-        from methods.fitting import get_budget
+        from methods.core.fitting import get_budget
 
         weights_key = digest({"shape": result.shape_hash, "method": method.fit_name, "input": method.input_kind,
                               "output_dim": method.output_dim, "budget": dataclasses.asdict(get_budget(spec.budget, spec.budget_params)),
@@ -296,7 +296,7 @@ def _fit(spec, method, shape, fields, device, caches, weights_key, result: TaskR
     from benchmark import metrics
     from benchmark.sampler import sample_training_data
     from benchmark.seeding import job_streams
-    from methods import fitting
+    from methods.core import fitting
 
     budget = fitting.get_budget(spec.budget, spec.budget_params)
     streams = job_streams(shape.content_hash, spec.seed)
@@ -384,7 +384,7 @@ def _reconstruct_body(spec: JobSpec, shape, device, timer: StageTimer, result: T
     network = {}
     if spec.budget is not None:  # a learned method: its network, trained once across shapes (cached)
         from runner.training import trained_network
-        from methods.knn_training import get_knn_budget
+        from methods.pointcloud.knn.training import get_knn_budget
 
         report("training")
         stats = CacheStats()

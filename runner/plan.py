@@ -159,12 +159,12 @@ def _train_dirs(config: RunConfig, methods: tuple[str, ...]) -> tuple[str, ...]:
 
 def _budget(config: RunConfig, methods: tuple[str, ...]):
     """The plan's budget: the per-shape fitting budget (encode, neural mode), the training budget of
-    the learned methods (reconstruct, :data:`methods.knn_network.KNN_BUDGETS`), else None."""
+    the learned methods (reconstruct, :data:`methods.pointcloud.knn.network.KNN_BUDGETS`), else None."""
     from methods.base import METHODS
-    from methods.fitting import get_budget
+    from methods.core.fitting import get_budget
 
     if config.task == "reconstruct":
-        from methods.knn_training import get_knn_budget
+        from methods.pointcloud.knn.training import get_knn_budget
 
         learned = any(METHODS.get(m).learned for m in methods)
         if not learned and config.budget_params:

@@ -59,7 +59,7 @@ def environment_record() -> dict[str, Any]:
     """Everything config.json records about where the run ran."""
     import torch
 
-    from methods.device import describe_device, get_device
+    from methods.core.device import describe_device, get_device
 
     return {
         "versions": package_versions(), "python": sys.version.split()[0], "platform": platform.platform(),

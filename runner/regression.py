@@ -41,7 +41,7 @@ import pandas as pd
 
 from benchmark.schema import columns, regression_columns
 from methods.base import METHODS, available_methods
-from methods.device import FLOAT_PATHS, float_path_environment
+from methods.core.device import FLOAT_PATHS, float_path_environment
 from runner.executors import available_cores
 from runner.provenance import REPO
 

@@ -65,10 +65,10 @@ def budget_parameters(task: str) -> dict[str, Param]:
     """The budget values a run of ``task`` may change: the per-shape fitting budget's (encode) or the
     K-NN training budget's (reconstruct)."""
     if task == "reconstruct":
-        from methods.knn_network import KNN_BUDGET_PARAMS
+        from methods.pointcloud.knn.network import KNN_BUDGET_PARAMS
 
         return KNN_BUDGET_PARAMS
-    from methods.fitting import BUDGET_PARAMS
+    from methods.core.fitting import BUDGET_PARAMS
 
     return BUDGET_PARAMS
 
@@ -119,8 +119,8 @@ def split_items(items: Iterable[str]) -> dict[str, list[str]]:
 def typed_sweep(sweep: Mapping[str, Sequence[Any]], methods: Sequence[str], mode: str,
                 task: str = "encode") -> dict[str, tuple]:
     """Each key's values typed and checked (ConfigError naming the key or value)."""
-    from methods.fitting import BUDGETS
-    from methods.knn_network import KNN_BUDGETS
+    from methods.core.fitting import BUDGETS
+    from methods.pointcloud.knn.network import KNN_BUDGETS
 
     registry = KNN_BUDGETS if task == "reconstruct" else BUDGETS
     typed: dict[str, tuple] = {}

@@ -1,8 +1,8 @@
 """The trained networks of the reconstruct task's learned methods: trained once per (training set,
 method, budget, code), cached, shared by every job and run that needs them.
 
-Training set: :func:`methods.knn_training.training_shapes` with the budget's ``training_shapes``
-built-in parts (generator seed :data:`methods.knn_training.DEFAULT_TRAINING_SEED`, disjoint from every
+Training set: :func:`methods.pointcloud.knn.training.training_shapes` with the budget's ``training_shapes``
+built-in parts (generator seed :data:`methods.pointcloud.knn.training.DEFAULT_TRAINING_SEED`, disjoint from every
 built-in test shape by construction and by hash) plus every mesh of the run's ``train_dirs`` (by
 default the Thingi10K folder of ``../shared/data`` where it exists). Cache key: the training set's
 digest (content hashes and names), the method, every budget value, the training seed and the code
@@ -33,7 +33,7 @@ def default_train_dirs() -> tuple[str, ...]:
 
 @lru_cache(maxsize=4)
 def _shapes(count: int, dirs: tuple[str, ...]):
-    from methods.knn_training import DEFAULT_TRAINING_SEED, training_shapes
+    from methods.pointcloud.knn.training import DEFAULT_TRAINING_SEED, training_shapes
 
     return tuple(training_shapes(count=count, seed=DEFAULT_TRAINING_SEED, extra_dirs=[Path(d) for d in dirs]))
 
@@ -41,7 +41,7 @@ def _shapes(count: int, dirs: tuple[str, ...]):
 def network_key(method, budget, train_dirs: tuple[str, ...]) -> tuple[str, tuple]:
     """(cache key, training shapes) of the network ``method`` trains at ``budget``."""
     from runner.cache import code_digest
-    from methods.knn_training import DEFAULT_TRAINING_SEED, training_set_digest
+    from methods.pointcloud.knn.training import DEFAULT_TRAINING_SEED, training_set_digest
 
     shapes = _shapes(budget.training_shapes, tuple(train_dirs))
     key = digest({"training_set": training_set_digest(shapes), "method": method.name,
@@ -55,7 +55,7 @@ def trained_network(method, budget, train_dirs: tuple[str, ...], cache_root: str
     """(model in eval mode, facts) of ``method`` at ``budget`` (its own :meth:`train_network`): from the cache, or
     trained now (and cached). Facts: ``network_key``, ``trained`` (1 if trained here), and after a
     training ``train_steps``, ``train_loop_s``, ``train_samples_per_s``, ``train_final_loss``."""
-    from methods.knn_training import DEFAULT_TRAINING_SEED
+    from methods.pointcloud.knn.training import DEFAULT_TRAINING_SEED
 
     key, shapes = network_key(method, budget, train_dirs)
     root = Path(cache_root)

@@ -24,7 +24,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from methods.device import FLOAT_PATHS, float_path_environment  # noqa: E402
+from methods.core.device import FLOAT_PATHS, float_path_environment  # noqa: E402
 
 
 def run_learned_tests(path: str, threads: int, seeds: list[int], log: Path, select: str) -> int:

@@ -96,7 +96,7 @@ def measured(request):
             return
         import torch
 
-        from methods.device import cpu_capability
+        from methods.core.device import cpu_capability
 
         callspec = getattr(request.node, "callspec", None)
         params = dict(callspec.params) if callspec else {}

@@ -32,7 +32,7 @@ class _FakeGridMethod(Method):
         return torch.nn.functional.binary_cross_entropy_with_logits(prediction, target)
 
     def neural_grid(self, model, N, device):
-        from methods import query
+        from methods.core import query
 
         values = query.dense_grid_points(model, N, device)[..., 0]
         if self.kind == "occupancy":
@@ -43,7 +43,7 @@ class _FakeGridMethod(Method):
         return cache.get(fields, N, self.kind), {}
 
     def extract(self, grid_field, N):
-        from methods.marching_cubes import marching_cubes_grid
+        from methods.extractors.marching_cubes import marching_cubes_grid
 
         if self.kind == "sdf":
             V, F = marching_cubes_grid(grid_field, self.params["level"], inside="low")

@@ -9,8 +9,8 @@ import trimesh
 
 from benchmark.surface import sample_surface
 
-from methods.fitting import weights_to_bytes
-from methods.knn_training import KNNTrainResult, training_shapes
+from methods.core.weights import weights_to_bytes
+from methods.pointcloud.knn.training import KNNTrainResult, training_shapes
 
 
 def sphere_cloud(n: int, radius: float, seed: int = 0) -> np.ndarray:

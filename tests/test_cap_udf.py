@@ -1,4 +1,4 @@
-"""CAP-UDF (methods/cap_udf.py, cap_udf_network.py, cap_udf_extraction.py): the network's
+"""CAP-UDF (methods/pointcloud/cap_udf/method.py, cap_udf_network.py, cap_udf_extraction.py): the network's
 geometric initialisation, the schedule, the extraction on a hand-made plane UDF, and the whole
 per-shape optimisation on a sphere cloud at the ``tiny`` budget."""
 
@@ -10,9 +10,9 @@ import torch
 
 from benchmark.grid import grid_points, spacing
 from methods.base import get_method
-from methods.cap_udf import CAP_UDF_CONFIGS, authors_frame, field_consistency_loss, learning_rate, voxel_downsample
-from methods.cap_udf_extraction import cap_udf_extract, gradient_signs, remove_far_faces
-from methods.cap_udf_network import CAPUDFNetwork, pull
+from methods.pointcloud.cap_udf.method import CAP_UDF_CONFIGS, authors_frame, field_consistency_loss, learning_rate, voxel_downsample
+from methods.pointcloud.cap_udf.extraction import cap_udf_extract, gradient_signs, remove_far_faces
+from methods.pointcloud.cap_udf.network import CAPUDFNetwork, pull
 
 R = 0.5
 

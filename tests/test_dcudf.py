@@ -1,4 +1,4 @@
-"""DCUDF's steps (methods/dcudf.py) on cases with known answers: the double cover of a sphere, its
+"""DCUDF's steps (methods/extractors/dcudf.py) on cases with known answers: the double cover of a sphere, its
 optimisation onto the sphere, the min-cut of a hand-built double cover, the integer capacities
 against a float max-flow, VectorAdam's first step, the learning-rate schedule and the fan test."""
 
@@ -13,7 +13,7 @@ from scipy.sparse.csgraph import connected_components
 
 from benchmark.fields import ExactFields
 from benchmark.grid import spacing
-from methods.dcudf import (VectorAdam, _graph, _min_cut_sink_side, authors_laplacian_weight, authors_lr, authors_r,
+from methods.extractors.dcudf import (VectorAdam, _graph, _min_cut_sink_side, authors_laplacian_weight, authors_lr, authors_r,
                            double_cover, field_udf, integer_capacities, learning_rate, mesh_cut,
                            non_manifold_vertices, optimise_vertices)
 

@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 
 from methods.base import METHODS, median_angle_deg, signed_hybrid, wrong_side_points
-from methods.sals import SALSMethod
+from methods.fields.sals import SALSMethod
 
 
 def test_each_method_lists_single_components_their_complements_and_all():
@@ -133,7 +133,7 @@ class _PlaneEdges:
 def test_the_calibrated_o_threshold_keeps_exactly_the_edges_that_cross_the_surface():
     from benchmark.fields import ExactFields
     from benchmark.grid import spacing
-    from methods.sals import calibrated_o_threshold
+    from methods.fields.sals import calibrated_o_threshold
 
     N, z0 = 32, 0.1 + 1e-3  # the plane off the grid's planes
     V = np.array([[-1.5, -1.5, z0], [1.5, -1.5, z0], [1.5, 1.5, z0], [-1.5, 1.5, z0]])  # beyond the cube

@@ -1,9 +1,9 @@
-"""methods/device.py: the device choice and the denormal flushing of CPU float operations."""
+"""methods/core/device.py: the device choice and the denormal flushing of CPU float operations."""
 
 import pytest
 import torch
 
-from methods.device import flush_denormals, get_device
+from methods.core.device import flush_denormals, get_device
 
 
 def _doubled_denormal() -> float:
@@ -38,7 +38,7 @@ def test_the_device_is_the_cpu_here_unless_asked(monkeypatch):
 
 
 def test_float_path_environment_sets_or_clears_torchs_kernel_family():
-    from methods.device import CAPABILITY_ENV, FLOAT_PATHS, float_path_environment
+    from methods.core.device import CAPABILITY_ENV, FLOAT_PATHS, float_path_environment
 
     base = {"PATH": "/bin", CAPABILITY_ENV: "avx2"}
     assert FLOAT_PATHS == ("default", "avx2", "native")

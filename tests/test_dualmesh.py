@@ -1,4 +1,4 @@
-"""DualMesh-UDF (methods.dualmesh): the QEF's corner / edge / plane cases by hand, the leaves of a
+"""DualMesh-UDF (methods.extractors.dualmesh): the QEF's corner / edge / plane cases by hand, the leaves of a
 plane, and the whole extraction against the authors' own code on a turned box."""
 
 from pathlib import Path
@@ -9,7 +9,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from benchmark.grid import grid_points, spacing
-from methods import dualmesh
+from methods.extractors import dualmesh
 from tests.data.make_dualmesh_reference import MAX_DEPTH, box_udf_grad
 
 REFERENCE = Path(__file__).parent / "data" / "dualmesh_reference_box.npz"

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from benchmark.grid import EdgeField, edge_axes, edge_endpoints, num_edges, spacing
-from methods.edc import (
+from methods.extractors.edc import (
     FAN_PLANE_TOLERANCE,
     _adaptive_split,
     edc_cell_vertices,

@@ -8,12 +8,12 @@ import pytest
 import torch
 
 from methods.base import Method
-from methods.fitting import (BUDGETS, Budget, check_not_constant, cosine_lr, fit, get_budget,
+from methods.core.fitting import (BUDGETS, Budget, check_not_constant, cosine_lr, fit, get_budget,
                              learning_rate, model_from_bytes, model_to_bytes, parameter_groups)
-from methods.marching_cubes import marching_cubes_grid
-from methods.training_loop import FittingError
-from methods.network import GridNetwork, make_network
-from methods.query import dense_grid_points, evaluate
+from methods.extractors.marching_cubes import marching_cubes_grid
+from methods.core.training_loop import FittingError
+from methods.core.network import GridNetwork, make_network
+from methods.core.query import dense_grid_points, evaluate
 
 TOY = Budget("toy", depth=3, width=32, iterations=60, batch_size=256, num_samples=2000, log_every=10)
 #: A small grid backbone (levels 8/16/32 x 2 channels, 3 x 32 head), the *cpu* budget's optimizer settings.
@@ -137,7 +137,7 @@ def test_warmup_ramps_linearly_then_follows_the_cosine():
 
     samples, targets = _toy_data()
     model_lrs = []
-    import methods.fitting as fitting_module
+    import methods.core.fitting as fitting_module
 
     original = fitting_module.make_optimizer
 

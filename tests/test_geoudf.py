@@ -1,4 +1,4 @@
-"""GeoUDF (methods/geoudf.py, methods/geoudf_network.py, methods/geoudf_extraction.py).
+"""GeoUDF (methods/pointcloud/geoudf/method.py, methods/pointcloud/geoudf/network.py, methods/pointcloud/geoudf/extraction.py).
 
 * E-MC on exact fields (no network): the UDF |r - R| of a sphere of radius R = 0.55 and its
   gradient on a grid of N = 40 (h = 0.051) give a closed genus-0 mesh whose vertices lie within
@@ -31,12 +31,12 @@ import trimesh
 
 from benchmark.grid import grid_points, spacing
 from methods.base import get_method
-from methods.knn_network import KNN_BUDGETS
-from methods.knn_training import training_shapes
-import methods.geoudf as geoudf
-from methods.geoudf_extraction import (CELL_EDGES, CORNER_PAIRS, CORNERS, crossing_pairs, cube_labels, edge_marching_cubes,
+from methods.pointcloud.knn.network import KNN_BUDGETS
+from methods.pointcloud.knn.training import training_shapes
+import methods.pointcloud.geoudf.method as geoudf
+from methods.pointcloud.geoudf.extraction import (CELL_EDGES, CORNER_PAIRS, CORNERS, crossing_pairs, cube_labels, edge_marching_cubes,
                                        edge_points, triangle_table)
-from methods.geoudf_network import GeometryGuidedUDF, make_geoudf_network, uv_sets
+from methods.pointcloud.geoudf.network import GeometryGuidedUDF, make_geoudf_network, uv_sets
 from tests.learned_checks import check_training_is_deterministic, check_weights_round_trip, sphere_cloud
 
 pytestmark = pytest.mark.usefixtures("torch_threads")

@@ -1,4 +1,4 @@
-"""GIFS (methods/gifs.py, methods/gifs_network.py, methods/gifs_extraction.py): the extraction on exact
+"""GIFS (methods/pointcloud/gifs/method.py, methods/pointcloud/gifs/network.py, methods/pointcloud/gifs/extraction.py): the extraction on exact
 flags (no network), its tables and a hand-worked cube, the balanced pair draw, the weights' round
 trip, determinism, and a ``tiny`` training that reconstructs a sphere.
 
@@ -34,12 +34,12 @@ from benchmark.fields import ExactFields
 from benchmark.grid import LOWER, spacing
 from benchmark.surface import sample_surface
 from methods.base import get_method
-from methods.knn_network import KNN_BUDGETS
-from methods.knn_training import training_shapes
-import methods.gifs as gifs
-from methods.gifs_extraction import (CORNER_PAIRS, CORNERS, CUBE_EDGE_AXES, CUBE_EDGES, PARTITIONS, corner_signs,
+from methods.pointcloud.knn.network import KNN_BUDGETS
+from methods.pointcloud.knn.training import training_shapes
+import methods.pointcloud.gifs.method as gifs
+from methods.pointcloud.gifs.extraction import (CORNER_PAIRS, CORNERS, CUBE_EDGE_AXES, CUBE_EDGES, PARTITIONS, corner_signs,
                                      extract_gifs_mesh)
-from methods.gifs_network import make_gifs_network, voxelize_cloud
+from methods.pointcloud.gifs.network import make_gifs_network, voxelize_cloud
 from tests.learned_checks import check_training_is_deterministic, check_weights_round_trip
 
 pytestmark = pytest.mark.usefixtures("torch_threads")

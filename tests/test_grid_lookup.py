@@ -4,8 +4,8 @@ gradients bit for bit everywhere), and its Jacobian and adjoint against autograd
 import pytest
 import torch
 
-from methods import grid_lookup
-from methods.network import trilinear
+from methods.core import grid_lookup
+from methods.core.network import trilinear
 
 #: torch's lerp uses a fused multiply-add on these CPU kernels; on the scalar kernels it need not.
 TORCH_LERP_FUSED = torch.backends.cpu.get_cpu_capability() != "DEFAULT"

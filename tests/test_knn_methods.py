@@ -1,4 +1,4 @@
-"""The three learned reconstruction methods (methods/sals_knn.py, udf_knn.py, occ_knn.py) end to end:
+"""The three learned reconstruction methods (methods/pointcloud/knn/sals_knn.py, udf_knn.py, occ_knn.py) end to end:
 trained at the ``tiny`` budget on its four built-in training parts (seconds), each reconstructs a
 held-out cube from a raw cloud within a stated Chamfer bound, and does clearly better than its
 untrained network.
@@ -56,8 +56,8 @@ import trimesh
 from benchmark.metrics import evaluate
 from benchmark.surface import sample_surface
 from methods.base import get_method
-from methods.knn_network import KNN_BUDGETS, make_knn_network
-from methods.knn_training import train, training_shapes
+from methods.pointcloud.knn.network import KNN_BUDGETS, make_knn_network
+from methods.pointcloud.knn.training import train, training_shapes
 
 pytestmark = pytest.mark.usefixtures("torch_threads")
 

@@ -7,7 +7,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from methods.knn_network import (KNN_BUDGETS, KNNBudget, LocalEncoder, PointKNNNetwork, SegmentKNNNetwork,
+from methods.pointcloud.knn.network import (KNN_BUDGETS, KNNBudget, LocalEncoder, PointKNNNetwork, SegmentKNNNetwork,
                                  knn_neighbourhoods, make_knn_network, segment_neighbourhoods)
 
 SMALL = dict(encoder_width=16, encoder_depth=1, head_width=16, head_depth=1)

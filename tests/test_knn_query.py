@@ -1,4 +1,4 @@
-"""Grid queries of the K-NN reconstruction networks (methods/knn_query.py) and the occupancy fill of
+"""Grid queries of the K-NN reconstruction networks (methods/pointcloud/knn/query.py) and the occupancy fill of
 occ-knn, checked against brute force and hand-made volumes."""
 
 from __future__ import annotations
@@ -8,10 +8,10 @@ import pytest
 import torch
 
 from benchmark.grid import spacing
-from methods.knn_network import make_knn_network
-from methods.knn_query import band_edges, band_points, evaluate_knn, nearest_distance
-from methods.occ_knn import far_occupancy
-from methods.query import edge_inputs, point_inputs
+from methods.pointcloud.knn.network import make_knn_network
+from methods.pointcloud.knn.query import band_edges, band_points, evaluate_knn, nearest_distance
+from methods.extractors.marching_cubes import far_occupancy
+from benchmark.grid import edge_inputs, point_inputs
 
 N = 24
 
@@ -64,7 +64,7 @@ def test_evaluate_knn_gradient_matches_finite_differences():
 def test_evaluate_knn_is_independent_of_the_chunk_size(monkeypatch):
     """Eval-mode batch norm uses running statistics, so a query's output is its own: 1,000 queries in
     chunks of 7 give what one pass gives (to float32 rounding), gradients included."""
-    import methods.knn_query as knn_query
+    import methods.pointcloud.knn.query as knn_query
 
     torch.manual_seed(0)
     net = make_knn_network("point", out_dim=1, encoder_width=16, encoder_depth=1, head_width=16,

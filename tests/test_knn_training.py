@@ -1,4 +1,4 @@
-"""Training a learned reconstruction method across shapes (methods.knn_training): a training
+"""Training a learned reconstruction method across shapes (methods.pointcloud.knn.training): a training
 set disjoint from the built-in test shapes, seeded pools, batches with exact K-NN neighbourhoods,
 a loss that drops, bit-identical reruns, weights as bytes and one-line failures."""
 
@@ -11,11 +11,11 @@ import torch.nn.functional as F
 
 from datasets import get_dataset
 from datasets.builtin import VARIANTS
-from methods import knn_training
+from methods.pointcloud.knn import training as knn_training
 from methods.base import LearnedPointCloudMethod
-from methods.training_loop import FittingError
-from methods.knn_network import KNN_BUDGETS, KNNBudget
-from methods.knn_training import (TrainingPools, TrainingSetError, knn_model_from_bytes, knn_model_to_bytes, train,
+from methods.core.training_loop import FittingError
+from methods.pointcloud.knn.network import KNN_BUDGETS, KNNBudget
+from methods.pointcloud.knn.training import (TrainingPools, TrainingSetError, knn_model_from_bytes, knn_model_to_bytes, train,
                                   training_set_digest, training_shapes)
 from tests.conftest import requires_shared
 

@@ -8,6 +8,7 @@ a cycle.
 
 from __future__ import annotations
 
+import ast
 from pathlib import Path
 
 import pytest
@@ -114,3 +115,73 @@ def test_the_checker_sees_lazy_and_relative_imports():
     assert any(t.startswith("reports") for t in graph["runner.export"])
     assert import_cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     assert import_cycles({"a": {"b"}, "b": set()}) == []
+
+
+# -- methods/: the rooms of the field ---------------------------------------------------------------
+METHOD_ROOMS = ("methods.fields", "methods.pointcloud")
+
+
+def registers_a_method(path: Path) -> bool:
+    """True when the module's top level defines a class decorated ``@register_method``."""
+    return any(isinstance(node, ast.ClassDef) and any(getattr(d, "id", None) == "register_method"
+                                                      for d in node.decorator_list)
+               for node in ast.parse(path.read_text(encoding="utf-8")).body)
+
+
+def method_modules(modules: dict[str, Path]) -> set[str]:
+    return {name for name, path in modules.items() if name.startswith(METHOD_ROOMS) and registers_a_method(path)}
+
+
+def imports_used_only_as_bases(path: Path, target: str) -> bool:
+    """True when every import of ``target`` in the module at ``path`` is ``from target import
+    Names`` and each name is a base class of a class the module defines (a subclass, nothing else)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    bases = {b.id for node in ast.walk(tree) if isinstance(node, ast.ClassDef) for b in node.bases
+             if isinstance(b, ast.Name)}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import) and any(a.name == target or a.name.startswith(target + ".") for a in node.names):
+            return False
+        if isinstance(node, ast.ImportFrom) and node.module == target:
+            if any((a.asname or a.name) not in bases for a in node.names):
+                return False
+            used = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)} - bases
+            if any((a.asname or a.name) in used for a in node.names if (a.asname or a.name) not in bases):
+                return False
+    return True
+
+
+def method_imports_other_than_subclassing(modules: dict[str, Path], graph: dict[str, set[str]]) -> list[str]:
+    methods_ = method_modules(modules)
+    return [f"{a} -> {b}" for a in sorted(methods_) for b in sorted(graph[a] & methods_)
+            if not imports_used_only_as_bases(modules[a], b)]
+
+
+def test_a_method_module_imports_another_only_to_subclass_it(graph):
+    modules = project_modules()
+    assert {"methods.fields.sals", "methods.fields.sdf_ndc", "methods.pointcloud.poco.method",
+            "methods.pointcloud.knn.sals_knn"} <= method_modules(modules)
+    bad = method_imports_other_than_subclassing(modules, graph)
+    assert not bad, "a method module imports another method module for more than a base class " \
+                    "(move the shared code into a shared module):\n" + "\n".join(bad)
+
+
+def test_extractors_and_core_never_import_a_method(graph):
+    modules = project_modules()
+    methods_ = method_modules(modules) | {m for m in modules if m.startswith(METHOD_ROOMS)}
+    lower = [m for m in modules if m.startswith(("methods.extractors", "methods.core"))]
+    bad = [f"{a} -> {b}" for a in sorted(lower) for b in sorted(graph[a] & methods_)]
+    assert not bad, "extractors and core import method modules:\n" + "\n".join(bad)
+
+
+def test_the_method_rule_sees_an_import_that_is_not_a_base(tmp_path):
+    subclass = tmp_path / "sub.py"
+    subclass.write_text("from methods.fields.sdf import SDFMethod\nclass A(SDFMethod):\n    pass\n")
+    helper = tmp_path / "helper.py"
+    helper.write_text("from methods.fields.sdf import SDFMethod, helper\nclass A(SDFMethod):\n    x = helper()\n")
+    module = tmp_path / "module.py"
+    module.write_text("import methods.fields.sdf as sdf\nclass A(sdf.SDFMethod):\n    pass\n")
+    assert imports_used_only_as_bases(subclass, "methods.fields.sdf")
+    assert not imports_used_only_as_bases(helper, "methods.fields.sdf")
+    assert not imports_used_only_as_bases(module, "methods.fields.sdf")
+    assert registers_a_method(REPO / "methods" / "fields" / "sals.py")
+    assert not registers_a_method(REPO / "methods" / "pointcloud" / "knn" / "training.py")

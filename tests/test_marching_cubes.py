@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from benchmark.grid import grid_points, spacing
-from methods.marching_cubes import marching_cubes_grid
+from methods.extractors.marching_cubes import marching_cubes_grid
 
 N = 40
 R = 0.6

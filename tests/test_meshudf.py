@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from benchmark.grid import grid_points, spacing
-from methods.meshudf import CUBE_EDGES, mc_case_table, meshudf_extract
+from methods.extractors.meshudf import CUBE_EDGES, mc_case_table, meshudf_extract
 
 N = 40
 H = spacing(N)

@@ -12,9 +12,9 @@ from benchmark.metrics import evaluate
 from benchmark.sampler import sample_training_data
 from benchmark.timing import StageTimer, stage
 from methods.base import METHODS, Method, available_methods, get_method
-from methods.fitting import BUDGETS, fit
+from methods.core.fitting import BUDGETS, fit
 from benchmark.params import Param
-from methods.sals import PAPER_O_THRESHOLD, edge_draws
+from methods.fields.sals import PAPER_O_THRESHOLD, edge_draws
 
 N_POINTS = 30_000  # metric samples: enough to separate sharp from rounded at N = 40
 
@@ -170,7 +170,7 @@ def test_neural_sals_cube_finds_the_twelve_sharp_edges(fit_seed, torch_threads, 
     (0.24-0.41 of them lie on a box edge) are the creases of those fins. Run at the paper's o
     threshold (0.1), at which the bounds were measured; at the default 0.5 (one thread, seeds 0-4 x
     float paths) the worst edge reached 0.70-0.925, the mean 0.929-0.973, CD 0.0065-0.0080."""
-    from methods.fitting import get_budget
+    from methods.core.fitting import get_budget
 
     V, F, corners, edges = generic_box()
     budget = get_budget("cpu", {"iterations": 1000})

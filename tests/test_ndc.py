@@ -1,4 +1,4 @@
-"""NDC (methods.ndc): the sparse network against a dense conv3d of the same layers, its output
+"""NDC (methods.extractors.ndc): the sparse network against a dense conv3d of the same layers, its output
 against NDC's own inference code with the published weights, and the dual contouring on hand-worked
 sign grids."""
 
@@ -11,7 +11,7 @@ import torch
 import torch.nn.functional as F
 import trimesh
 
-from methods import ndc
+from methods.extractors import ndc
 
 REFERENCE = Path(__file__).parent / "data" / "ndc_reference_box33.npz"
 

@@ -5,7 +5,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from methods.network import (ACTIVATIONS, GRID_INIT_SCALE, SEGMENT_SCALE, FeatureGrid, GridNetwork, endpoint_split,
+from methods.core.network import (ACTIVATIONS, GRID_INIT_SCALE, SEGMENT_SCALE, FeatureGrid, GridNetwork, endpoint_split,
                              fast_softplus, make_network, trilinear, value_and_input_gradient,
                              value_and_input_gradients)
 

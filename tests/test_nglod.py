@@ -11,9 +11,9 @@ from benchmark.fields import ExactFields
 from benchmark.metrics import evaluate
 from benchmark.sampler import sample_training_data
 from methods.base import get_method
-from methods.fitting import BUDGETS, fit, model_from_bytes, model_to_bytes, parameter_groups
-from methods.network import LODNetwork, make_network
-from methods.nglod import lod_resolutions
+from methods.core.fitting import BUDGETS, fit, model_from_bytes, model_to_bytes, parameter_groups
+from methods.core.network import LODNetwork, make_network
+from methods.fields.nglod import lod_resolutions
 
 
 def test_the_authors_five_lods_are_volumes_of_4_to_64_cells():

@@ -1,4 +1,4 @@
-"""POCO (methods/poco.py, methods/poco_network.py): properties of its layers a reader can check by
+"""POCO (methods/pointcloud/poco/method.py, methods/pointcloud/poco/network.py): properties of its layers a reader can check by
 hand, the weights' round trip, determinism, and a ``tiny`` training that reconstructs a sphere.
 
 * FKAConv is a function of the point *set*: permuting the input cloud permutes its output rows the
@@ -22,10 +22,10 @@ import torch
 import trimesh
 
 from methods.base import get_method
-from methods.knn_network import KNN_BUDGETS, knn_neighbourhoods
-from methods.knn_training import training_shapes
-import methods.poco as poco
-from methods.poco_network import (AttentionDecoder, FKAConv, batch_structures, cloud_structure, make_poco_network,
+from methods.pointcloud.knn.network import KNN_BUDGETS, knn_neighbourhoods
+from methods.pointcloud.knn.training import training_shapes
+import methods.pointcloud.poco.method as poco
+from methods.pointcloud.poco.network import (AttentionDecoder, FKAConv, batch_structures, cloud_structure, make_poco_network,
                                   quantized_subsample)
 from tests.learned_checks import check_training_is_deterministic, check_weights_round_trip, sphere_cloud
 

@@ -1,4 +1,4 @@
-"""Classic point-cloud reconstruction baselines (methods/poisson.py, methods/ball_pivoting.py) on
+"""Classic point-cloud reconstruction baselines (methods/pointcloud/poisson.py, methods/pointcloud/ball_pivoting.py) on
 point clouds with a known answer: a sphere (closed) and a hemisphere (open)."""
 
 from __future__ import annotations
@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from methods.base import get_method
-from methods.poisson import poisson_depth, trim_by_density
+from methods.extractors.meshlab import poisson_depth
+from methods.pointcloud.poisson import trim_by_density
 
 R = 0.5
 

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 import torch
 
-from benchmark.grid import edge_endpoints, num_edges, spacing
-from methods import query
+from benchmark.grid import edge_endpoints, edge_inputs, num_edges, spacing
+from methods.core import query
 
 
 class SphereNet(torch.nn.Module):
@@ -47,7 +47,7 @@ def test_grid_edges_with_shared_endpoints_equal_the_plain_forward(backbone):
     """evaluate_grid_edges encodes each endpoint once per pass: the same outputs as the network on the
     edges' [u, v] rows (float32 rounding), for scattered edges of all three axes, passes small enough to
     cut the slab in many places, and the dense grid; a module it cannot split takes the plain path."""
-    from methods.network import make_network
+    from methods.core.network import make_network
 
     torch.manual_seed(0)
     config = dict(backbone="grid", grid_resolutions=(4, 8), grid_channels=2) if backbone == "grid" else {}
@@ -57,16 +57,16 @@ def test_grid_edges_with_shared_endpoints_equal_the_plain_forward(backbone):
             level.normal_()
     N = 12
     ids = np.sort(np.random.default_rng(0).choice(num_edges(N), 1500, replace=False))
-    plain = query.evaluate(net, query.edge_inputs(N, ids))
+    plain = query.evaluate(net, edge_inputs(N, ids))
     for per_pass in (1500, 97):
         np.testing.assert_allclose(query.evaluate_grid_edges(net, N, ids, edges_per_pass=per_pass, chunk=50),
                                    plain, rtol=0, atol=2e-5)
-    np.testing.assert_allclose(query.dense_grid_edges(net, N), query.evaluate(net, query.edge_inputs(N)), rtol=0,
+    np.testing.assert_allclose(query.dense_grid_edges(net, N), query.evaluate(net, edge_inputs(N)), rtol=0,
                                atol=2e-5)
     assert query.evaluate_grid_edges(net, N, ids[:0]).shape == (0, 2)
     plane = PlaneSegmentNet()
     np.testing.assert_array_equal(query.evaluate_grid_edges(plane, N, ids),
-                                  query.evaluate(plane, query.edge_inputs(N, ids)))
+                                  query.evaluate(plane, edge_inputs(N, ids)))
 
 
 def test_coarse_indices_and_block_membership_by_hand():
@@ -115,7 +115,7 @@ def test_input_gradient_of_a_grid_network_is_autograds():
     """A feature-grid network (fitted weights or not) in eval mode, its parameters requiring grad as
     after a fit: the chunked gradient (the grid's analytic Jacobian) equals autograd's to float32
     rounding, and both come back as plain arrays."""
-    from methods.network import make_network
+    from methods.core.network import make_network
 
     torch.manual_seed(0)
     net = make_network(3, 1, depth=3, width=32, backbone="grid", grid_resolutions=(4, 8), grid_channels=2).eval()
@@ -174,7 +174,7 @@ def test_sparse_edges_equal_dense_on_fitted_sals_networks(index, torch_threads):
     from benchmark.sampler import sample_training_data
     from datasets.builtin import generate_shape
     from methods.base import get_method
-    from methods.fitting import fit, get_budget
+    from methods.core.fitting import fit, get_budget
 
     shape = generate_shape(index, "closed", 0)
     sals = get_method("sals")

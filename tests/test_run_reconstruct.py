@@ -60,7 +60,7 @@ def test_options_of_the_other_task_are_refused_with_one_line(tmp_path, capsys, a
 def test_a_learned_method_trains_once_and_later_jobs_and_runs_load_its_network(tmp_path):
     import json
 
-    from methods.knn_network import KNN_BUDGETS, KNNBudget
+    from methods.pointcloud.knn.network import KNN_BUDGETS, KNNBudget
 
     budget = KNNBudget("test-knn", k=8, encoder_width=16, encoder_depth=1, head_width=16, head_depth=1, steps=20,
                        shapes_per_batch=2, samples_per_item=256, points_per_item=2000, training_shapes=2,

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from benchmark.metrics import evaluate
-from methods import ndc
+from methods.extractors import ndc
 from methods.base import METHODS, available_methods, get_method
 from runner.cache import fit_code_digest
 from runner.config import ConfigError, RunConfig

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from methods.training_loop import FittingError, checked_loss, run_steps
+from methods.core.training_loop import FittingError, checked_loss, run_steps
 
 
 def _scalar_model(start: float = 4.0) -> torch.nn.Module:

@@ -9,7 +9,8 @@ import trimesh
 from benchmark.field_cache import FieldCache
 from benchmark.fields import ExactFields
 from benchmark.grid import spacing
-from methods import ndc, undc, undc_training
+from methods.extractors import ndc, undc
+from methods.training import undc as undc_training
 from methods.base import available_methods, get_method
 from runner.cache import fit_code_digest
 from runner.config import ConfigError, RunConfig
@@ -58,7 +59,7 @@ def test_without_the_weights_it_is_unavailable_with_one_clear_line(tmp_path, mon
     monkeypatch.setenv(undc.WEIGHTS_ENV, str(absent))
     line = get_method("udf-ndc").unavailable()
     assert line is not None and "\n" not in line and str(absent) in line
-    assert "python -m methods.undc_training --budget cpu" in line
+    assert "python -m methods.training.undc --budget cpu" in line
     assert "udf-ndc" not in available_methods() and "udf" in available_methods()
     with pytest.raises(ConfigError, match=r"method 'udf-ndc' cannot run here: UNDC weights not found at .*absent.pt"):
         resolve(RunConfig(methods=("udf", "udf-ndc"), limit=1))
@@ -81,7 +82,7 @@ def test_the_cache_key_of_its_meshes_follows_the_weights_file(tiny_weights, tmp_
 
 
 def test_the_committed_weights_are_the_cpu_recipe_output():
-    """The checkout's weights file is what ``python -m methods.undc_training --budget cpu`` writes at
+    """The checkout's weights file is what ``python -m methods.training.undc --budget cpu`` writes at
     seed 0: its recorded budget is the ``cpu`` budget as defined now."""
     _, _, info = undc.load_weights(undc.DEFAULT_WEIGHTS)
     assert info["budget"] == undc_training.get_undc_budget("cpu").to_dict() and info["seed"] == 0

@@ -1,4 +1,4 @@
-"""UNDC (methods.undc, methods.undc_training): the exact labels of a cube contour it exactly, the
+"""UNDC (methods.extractors.undc, methods.training.undc): the exact labels of a cube contour it exactly, the
 sparse inference is the dense convolution, the augmentation moves labels with the grid, and the tiny
 training budget runs, is deterministic and lowers both losses."""
 
@@ -9,7 +9,8 @@ import trimesh
 
 from benchmark.fields import ExactFields
 from benchmark.grid import index_to_world
-from methods import undc, undc_training
+from methods.extractors import undc
+from methods.training import undc as undc_training
 
 CUBE_HALF = 0.55  # side 1.1
 CUBE_CENTRE = np.array([0.013, -0.021, 0.0071])  # off the grid planes

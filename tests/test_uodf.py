@@ -11,8 +11,8 @@ from benchmark.grid import grid_points, spacing
 from benchmark.metrics import evaluate
 from benchmark.sampler import sample_training_data
 from methods.base import get_method
-from methods.fitting import BUDGETS, fit
-from methods.uodf import TRUNCATION, crossing_estimates, remove_outliers, surface_points_along
+from methods.core.fitting import BUDGETS, fit
+from methods.fields.uodf import TRUNCATION, crossing_estimates, remove_outliers, surface_points_along
 from tests.test_methods import _oracle, generic_box
 
 R = 0.7

@@ -1,0 +1,56 @@
+"""A trained network as bytes, and back: the one storage format of every network the project
+fits or trains (``{'state_dict', 'config', 'budget', 'method', 'final_loss'}`` through
+``torch.save``), and the one error of a weights file that cannot be used.
+
+``config`` is the keyword arguments that rebuild the network (``model.config``); the run layer
+stores the bytes checksummed (:mod:`benchmark.storage`).
+"""
+
+from __future__ import annotations
+
+import io
+from typing import Callable
+
+import torch
+
+from methods.core.device import get_device
+
+
+class WeightsError(RuntimeError):
+    """A weights file is absent, is not the network it should be, or cannot be read; the message
+    is one line naming the file."""
+
+
+def weights_to_bytes(model, budget: dict, method_name: str, final_loss: float) -> bytes:
+    """``torch.save`` bytes of ``{'state_dict', 'config' (``model.config``), 'budget', 'method', 'final_loss'}``."""
+    buf = io.BytesIO()
+    torch.save({"state_dict": model.state_dict(), "config": model.config, "budget": budget,
+                "method": method_name, "final_loss": float(final_loss)}, buf)
+    return buf.getvalue()
+
+
+def refused_weights_from_bytes(data: bytes, build: Callable[..., torch.nn.Module], device=None,
+                               method_name: str | None = None, what: str = "weights") -> torch.nn.Module:
+    """The model of :func:`weights_from_bytes`; any failure (truncated or foreign bytes, another
+    method's weights, another architecture) as one line ``ValueError("<what> refused (<error>): ...")``."""
+    try:
+        model, _ = weights_from_bytes(data, build, device, method_name, what=what)
+    except Exception as exc:
+        first = (str(exc).splitlines() or [""])[0][:200]
+        raise ValueError(f"{what} refused ({type(exc).__name__}): {first}") from None
+    return model
+
+
+def weights_from_bytes(data: bytes, build: Callable[..., torch.nn.Module], device=None,
+                       method_name: str | None = None, what: str = "weights") -> tuple[torch.nn.Module, dict]:
+    """(``build(**config)`` with the stored weights, in eval mode on ``device``; the stored dict) from
+    :func:`weights_to_bytes`' bytes. ``method_name``, when given, must match the stored one (a clear
+    ValueError otherwise, naming ``what``)."""
+    device = get_device(device)
+    blob = torch.load(io.BytesIO(data), map_location=device, weights_only=False)
+    if method_name is not None and blob.get("method") != method_name:
+        raise ValueError(f"{what} of method '{blob.get('method')}', expected '{method_name}'")
+    model = build(**blob["config"]).to(device)
+    model.load_state_dict(blob["state_dict"])
+    model.eval()
+    return model, blob

@@ -1,0 +1,13 @@
+"""Mesh operations shared by the extractors: arrays in, arrays out."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def keep_vertices(vertices: np.ndarray, faces: np.ndarray, keep: np.ndarray):
+    """The mesh of the vertices where ``keep`` (n,) holds and the faces using only those; returns
+    (vertices, faces reindexed, vertices removed)."""
+    index = np.cumsum(keep) - 1
+    faces = faces[keep[faces].all(axis=1)]
+    return vertices[keep], index[faces], int((~keep).sum())

@@ -1,0 +1,30 @@
+"""pymeshlab steps shared by the classic point-cloud baselines (``poisson``, ``ball-pivoting``)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from benchmark.timing import stage
+
+
+def oriented_point_set(points: np.ndarray, k: int):
+    """A pymeshlab MeshSet holding ``points`` with PCA normals over their ``k`` nearest neighbours,
+    oriented by MeshLab (``compute_normal_for_point_clouds``); timed as the ``normals`` sub-stage."""
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=np.asarray(points, dtype=np.float64)))
+    with stage("normals"):
+        ms.compute_normal_for_point_clouds(k=k, smoothiter=0)
+    return ms
+
+
+def current_mesh(ms) -> tuple[np.ndarray, np.ndarray, object]:
+    """(vertices float64, faces int64, the pymeshlab mesh) of the MeshSet's current mesh."""
+    mesh = ms.current_mesh()
+    return np.asarray(mesh.vertex_matrix(), dtype=np.float64), np.asarray(mesh.face_matrix(), dtype=np.int64), mesh
+
+
+def poisson_depth(N: int) -> int:
+    """The octree depth whose finest level matches an N-point grid: round(log2 N), at least 1."""
+    return max(1, int(round(np.log2(max(2, int(N))))))

@@ -1,0 +1,240 @@
+"""Neural Dual Contouring (Chen et al., SIGGRAPH 2022) for SDF input, with NDC's published network.
+
+NDC places one vertex in every grid cell whose corners do not all have the same sign and connects
+them by dual contouring; a 3D CNN predicts each vertex's position inside its cell from the SDF
+around it. For SDF input the intersection flags are not predicted: they are the signs of the SDF
+(inside = ``sdf < 0``). This module is two functions and the network:
+
+* :func:`ndc_vertex_offsets`: NDC's CNN ``CNN_3d_rec7_resnet`` (three unpadded 3x3x3 convolutions,
+  eight residual blocks of 1x1x1 convolutions, leaky ReLU 0.01) evaluated *sparsely*: only at the
+  cells that get a vertex and at the cells their receptive field (7^3 grid points) needs. A dense
+  ``conv3d`` over the whole grid gives the same values; at 128^3 it would spend ~1.3 TFLOP mostly
+  on empty space.
+* :func:`dual_contour_signs`: NDC's dual contouring of a sign grid with per-cell vertex offsets,
+  vectorised (NDC's ``dual_contouring_ndc_test``): the same vertices in the same order and the same
+  triangles, which point outward.
+
+Input as NDC feeds its network: the SDF on the grid points in voxel units (one cell edge = 1),
+padded by 3 points on each side with +-10 (the sign of the grid's corner point [0, 0, 0]) and
+clipped to [-2, 2]. Output offsets are clipped to [0, 1] (cell units).
+
+The weights are data: ``network_float.pth`` of NDC's repository (MIT), found at
+``$SALSBENCH_NDC_WEIGHTS`` or ``../shared/data/weights/ndc/network_float.pth`` beside the checkout,
+and checked against their published SHA-256 before use.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import itertools
+import os
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from methods.core.weights import WeightsError
+
+#: Environment variable naming the weights file.
+WEIGHTS_ENV = "SALSBENCH_NDC_WEIGHTS"
+#: Where the weights are found without the variable: the shared data beside the checkout.
+DEFAULT_WEIGHTS = Path(__file__).resolve().parents[3] / "shared" / "data" / "weights" / "ndc" / "network_float.pth"
+#: SHA-256 of NDC's published SDF-input network (github.com/czq142857/NDC, ``network_float.pth``).
+WEIGHTS_SHA256 = "935d1bb16fb7c2bbbb68e2c3f521001aae1cbeff4cf0fc01984f414cfe4a247e"
+
+#: Grid points of padding each side: the receptive field of the three unpadded 3x3x3 convolutions.
+RECEPTIVE_PADDING = 3
+#: Input clip, voxel units.
+INPUT_CLIP = 2.0
+#: Value of the padding before the clip (its sign is the corner point's).
+PADDING_VALUE = 10.0
+LEAKY_SLOPE = 0.01
+#: The residual blocks after the last 3x3x3 convolution (res_1 follows conv_0, res_2 conv_1).
+_TAIL_RESIDUALS = tuple(f"res_{i}" for i in range(3, 9))
+#: The 27 offsets of a 3x3x3 kernel in the C order of its weight's (kd, kh, kw) axes.
+KERNEL_OFFSETS = np.array(list(itertools.product(range(3), repeat=3)), dtype=np.int64)
+#: Rows gathered per matrix product of a sparse 3x3x3 convolution (bounds the (rows, 27 x 64) buffer).
+_CHUNK = 16384
+
+
+def weights_path() -> Path:
+    """The weights file: ``$SALSBENCH_NDC_WEIGHTS`` when set, else :data:`DEFAULT_WEIGHTS`."""
+    return Path(os.environ.get(WEIGHTS_ENV) or DEFAULT_WEIGHTS)
+
+
+def load_weights(path: str | Path | None = None) -> dict[str, torch.Tensor]:
+    """NDC's state dict (float32 CPU tensors) from ``path`` (default :func:`weights_path`), after
+    checking the file's SHA-256.
+
+    Raises :class:`WeightsError` with one line naming the file when it is absent or differs."""
+    return _load_checked(str(Path(path) if path is not None else weights_path()))
+
+
+@lru_cache(maxsize=2)
+def _load_checked(path: str) -> dict[str, torch.Tensor]:
+    if not Path(path).is_file():
+        raise WeightsError(f"NDC weights not found at {path} (set {WEIGHTS_ENV} to network_float.pth "
+                           "of github.com/czq142857/NDC)")
+    data = Path(path).read_bytes()
+    digest = hashlib.sha256(data).hexdigest()
+    if digest != WEIGHTS_SHA256:
+        raise WeightsError(f"{path} is not NDC's published SDF network (sha256 {digest[:12]}..., "
+                           f"expected {WEIGHTS_SHA256[:12]}...)")
+    state = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
+    return {k: v.float() for k, v in state.items()}
+
+
+def network_input(sdf_voxels: np.ndarray) -> np.ndarray:
+    """NDC's input grid from an SDF in voxel units, shape (N, N, N): padded by
+    :data:`RECEPTIVE_PADDING` with +-:data:`PADDING_VALUE` (the sign of point [0, 0, 0]) and clipped
+    to [-2, 2]; shape (N + 6,)^3, float32."""
+    sdf_voxels = np.asarray(sdf_voxels, dtype=np.float32)
+    fill = PADDING_VALUE if sdf_voxels[0, 0, 0] > 0 else -PADDING_VALUE
+    padded = np.pad(sdf_voxels, RECEPTIVE_PADDING, mode="constant", constant_values=fill)
+    return np.clip(padded, -INPUT_CLIP, INPUT_CLIP)
+
+
+def leaky(x: torch.Tensor) -> torch.Tensor:
+    return F.leaky_relu(x, LEAKY_SLOPE)
+
+
+def pointwise_conv(state: dict, name: str, x: torch.Tensor) -> torch.Tensor:
+    """A 1x1x1 convolution on rows of features (M, C_in) -> (M, C_out)."""
+    w = state[f"{name}.weight"]
+    return torch.addmm(state[f"{name}.bias"], x, w.reshape(w.shape[0], -1).t())
+
+
+def _residual(state: dict, name: str, x: torch.Tensor) -> torch.Tensor:
+    y = leaky(pointwise_conv(state, f"{name}.conv_1", x))
+    return leaky(pointwise_conv(state, f"{name}.conv_2", y) + x)
+
+
+def sparse_conv3(state: dict, name: str, features: torch.Tensor, index: np.ndarray, coords: np.ndarray) -> torch.Tensor:
+    """An unpadded 3x3x3 convolution evaluated at output positions ``coords`` (M, 3): output (p)
+    reads the input at p + (a, b, c), a, b, c in {0, 1, 2}; ``index`` maps an input position to its
+    row of ``features`` (-1: not computed, which the caller's dilation rules out)."""
+    w = state[f"{name}.weight"]  # (out, in, 3, 3, 3)
+    matrix = w.permute(2, 3, 4, 1, 0).reshape(27 * w.shape[1], w.shape[0])
+    out = torch.empty((len(coords), w.shape[0]), dtype=features.dtype)
+    for start in range(0, len(coords), _CHUNK):
+        block = coords[start:start + _CHUNK, None, :] + KERNEL_OFFSETS[None]
+        rows = torch.from_numpy(index[block[..., 0], block[..., 1], block[..., 2]].reshape(-1))
+        gathered = features.index_select(0, rows).reshape(len(block), -1)
+        out[start:start + _CHUNK] = torch.addmm(state[f"{name}.bias"], gathered, matrix)
+    return leaky(out)
+
+
+def receptive_positions(coords: np.ndarray, shape: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """The positions an unpadded 3x3x3 convolution at ``coords`` reads, sorted (C order), and a
+    volume of ``shape`` mapping each to its row (-1 elsewhere)."""
+    mask = np.zeros(shape, dtype=bool)
+    reads = coords[:, None, :] + KERNEL_OFFSETS[None]
+    mask[reads[..., 0].ravel(), reads[..., 1].ravel(), reads[..., 2].ravel()] = True
+    needed = np.argwhere(mask)
+    index = np.full(shape, -1, dtype=np.int64)
+    index[needed[:, 0], needed[:, 1], needed[:, 2]] = np.arange(len(needed))
+    return needed, index
+
+
+def ndc_vertex_offsets(sdf_voxels: np.ndarray, cells: np.ndarray, state: dict | None = None) -> np.ndarray:
+    """NDC's predicted vertex position inside each of ``cells``, in cell units.
+
+    Parameters
+    ----------
+    sdf_voxels : (N, N, N) signed distance on the grid points in voxel units (negative inside).
+    cells : (M, 3) int cell indices (i, j, k), each in [0, N - 1).
+    state : NDC's state dict (default: :func:`load_weights`).
+
+    Returns
+    -------
+    (M, 3) float32 offsets in [0, 1]^3 from the cell's lower corner, clipped as NDC does.
+    """
+    state = load_weights() if state is None else state
+    grid = network_input(sdf_voxels)
+    n = sdf_voxels.shape[0]
+    cells = np.asarray(cells, dtype=np.int64).reshape(-1, 3)
+    if len(cells) == 0:
+        return np.zeros((0, 3), dtype=np.float32)
+    # positions per layer output: conv_2 -> (n,)^3 (the cells), conv_1 -> (n + 2,)^3, conv_0 -> (n + 4,)^3
+    at_conv1, index_conv1 = receptive_positions(cells, (n + 2,) * 3)
+    at_conv0, index_conv0 = receptive_positions(at_conv1, (n + 4,) * 3)
+    with torch.no_grad():
+        patches = at_conv0[:, None, :] + KERNEL_OFFSETS[None]
+        x = torch.from_numpy(grid[patches[..., 0], patches[..., 1], patches[..., 2]])  # (M0, 27)
+        w0 = state["conv_0.weight"]
+        x = leaky(torch.addmm(state["conv_0.bias"], x, w0.permute(2, 3, 4, 1, 0).reshape(27, -1)))
+        x = _residual(state, "res_1", x)
+        x = sparse_conv3(state, "conv_1", x, index_conv0, at_conv1)
+        x = _residual(state, "res_2", x)
+        x = sparse_conv3(state, "conv_2", x, index_conv1, cells)
+        for name in _TAIL_RESIDUALS:
+            x = _residual(state, name, x)
+        x = leaky(pointwise_conv(state, "conv_3", x))
+        x = leaky(pointwise_conv(state, "conv_4", x))
+        offsets = pointwise_conv(state, "conv_out_float", x)
+    return np.clip(offsets.numpy(), 0.0, 1.0)
+
+
+def active_cells(inside: np.ndarray) -> np.ndarray:
+    """Cells (i, j, k) of an (N, N, N) boolean grid whose 8 corners are not all equal, (M, 3) int64
+    in C order (NDC's vertex order)."""
+    inside = np.asarray(inside, dtype=bool)
+    corners = [inside[a:inside.shape[0] - 1 + a, b:inside.shape[1] - 1 + b, c:inside.shape[2] - 1 + c]
+               for a, b, c in itertools.product((0, 1), repeat=3)]
+    anyone, everyone = np.logical_or.reduce(corners), np.logical_and.reduce(corners)
+    return np.argwhere(anyone & ~everyone)
+
+
+#: Per axis: the four cells around an edge (offsets from the edge's start point, in NDC's corner
+#: names c00 = (-1, -1), c10, c11, c01 over the two other axes) and the two triangles of its quad
+#: when the edge's start point is outside, as NDC writes them (indices into those four cells).
+_QUAD_CELLS = {
+    0: np.array([[0, -1, -1], [0, 0, -1], [0, 0, 0], [0, -1, 0]]),
+    1: np.array([[-1, 0, -1], [0, 0, -1], [0, 0, 0], [-1, 0, 0]]),
+    2: np.array([[-1, -1, 0], [-1, 0, 0], [0, 0, 0], [0, -1, 0]]),
+}
+_OUTSIDE_FIRST = {0: np.array([[0, 2, 1], [0, 3, 2]]), 1: np.array([[0, 1, 2], [0, 2, 3]]),
+                  2: np.array([[0, 1, 2], [0, 2, 3]])}
+
+
+def dual_contour_signs(inside: np.ndarray, offsets: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """NDC's dual contouring of a sign grid.
+
+    Parameters
+    ----------
+    inside : (N, N, N) bool, True inside.
+    offsets : (M, 3) vertex positions inside ``cells`` in cell units.
+    cells : (M, 3) the active cells (:func:`active_cells`), in that order.
+
+    Returns
+    -------
+    vertices : (M, 3) float64 in grid index units (vertex m at ``cells[m] + offsets[m]``).
+    faces : (F, 3) int64, two triangles per grid edge whose end points differ (edges on the grid's
+        boundary faces have no quad), oriented outward (right-hand normal away from the inside):
+        the triangles of NDC's code in its order (axis, then edge in C order).
+    """
+    inside = np.asarray(inside, dtype=bool)
+    n = inside.shape
+    vertex_of = np.full(tuple(s - 1 for s in n), -1, dtype=np.int64)
+    vertex_of[cells[:, 0], cells[:, 1], cells[:, 2]] = np.arange(len(cells))
+    faces = []
+    for axis in range(3):
+        lo = [1, 1, 1]
+        lo[axis] = 0
+        hi = [s - 1 for s in n]
+        start = inside[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]]
+        step = np.zeros(3, dtype=np.int64)
+        step[axis] = 1
+        end = inside[lo[0] + step[0]:hi[0] + step[0], lo[1] + step[1]:hi[1] + step[1], lo[2] + step[2]:hi[2] + step[2]]
+        crossing = np.argwhere(start != end) + np.array(lo)
+        quad = vertex_of[tuple(np.moveaxis(crossing[:, None, :] + _QUAD_CELLS[axis][None], -1, 0))]  # (E, 4)
+        tris = quad[:, _OUTSIDE_FIRST[axis]]  # (E, 2, 3)
+        flip = inside[crossing[:, 0], crossing[:, 1], crossing[:, 2]]
+        tris[flip] = tris[flip][:, :, [0, 2, 1]]
+        faces.append(tris.reshape(-1, 3))
+    faces = np.concatenate(faces)
+    vertices = cells.astype(np.float64) + np.asarray(offsets, dtype=np.float64)
+    return vertices, np.ascontiguousarray(faces, dtype=np.int64)

@@ -1,0 +1,90 @@
+"""``udf-ndc``: the ``udf`` method's unsigned distance field extracted by UNDC (unsigned Neural Dual
+Contouring, Chen et al., SIGGRAPH 2022) with our own weights.
+
+The field is the ``udf`` method's: the same targets and loss, and in neural mode the same fitted
+network (``fit_of = 'udf'``). Extraction: :func:`methods.extractors.undc.undc_predict` on the UDF in voxel units
+(``d / h``): the bool network flags the grid edges that cross the surface (only edges whose end points
+both have UDF < 1 voxel are considered), the float network places a vertex in every cell around a
+flagged edge, a quad (two unoriented triangles) joins the 4 cells of each flagged edge. NDC's optional
+post-processing of the flags is not applied.
+Weights: trained by :mod:`methods.training.undc` (``python -m methods.training.undc --budget cpu``),
+read from ``$SALSBENCH_UNDC_WEIGHTS`` or ``methods/weights/undc_cpu.pt``; without them the method is
+unavailable.
+Oracle: the exact narrow-band UDF on the grid (as ``udf-dualmesh``; its band, >= 2h, covers the input
+clip of 2 voxels). Neural: the sparse query of :mod:`methods.core.query`, fine wherever a block may hold a
+point within the input clip of the surface (some corner has ``f < sqrt(3) S h / 2 + 2h``), so the
+networks see the fitted values wherever they are not clipped; d = max(f, 0).
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+from benchmark.grid import index_to_world, spacing
+from benchmark.params import Param
+from benchmark.timing import stage
+from methods.core import query
+from methods.extractors import undc
+from methods.core.weights import WeightsError
+from methods.base import Extraction, register_method
+from methods.fields.udf import UDFMethod
+
+
+@lru_cache(maxsize=2)
+def _networks(path: str, size: int, modified_ns: int):
+    """(bool network, float network, info) of a weights file, cached by (path, size, modification time)."""
+    return undc.load_weights(path)
+
+
+def _load():
+    path = undc.weights_path()
+    stat = path.stat() if path.is_file() else None
+    if stat is None:
+        undc.load_weights(path)  # raises the one-line WeightsError
+    return _networks(str(path), stat.st_size, stat.st_mtime_ns)
+
+
+@register_method
+class UDFNDCMethod(UDFMethod):
+    name = "udf-ndc"
+    description = "the udf method's field + unsigned Neural Dual Contouring (UNDC) with our trained networks"
+    extractor = "UNDC (our weights)"
+    fit_of = "udf"
+    display_order = 36
+    color = "#a0522d"
+    components = ()
+    parameters = {
+        "stride": Param(query.DEFAULT_STRIDE, "coarse stride of the sparse query", ge=1, neural_only=True),
+    }
+
+    @classmethod
+    def unavailable(cls):
+        try:
+            _load()
+        except WeightsError as exc:
+            return str(exc)
+        return None
+
+    def oracle_grid(self, fields, N, cache):
+        d, _ = cache.get(fields, N, "udf_grad")
+        return {"udf": d}, {}
+
+    def neural_grid(self, model, N, device=None):
+        stride = self.params["stride"]
+        margin = query.block_half_diagonal(N, stride) + undc.INPUT_CLIP * spacing(N)
+        values, _, info = query.sparse_grid_points(model, N, query.near_below(margin), device, stride=stride)
+        return {"udf": np.maximum(values[..., 0], 0.0)}, {"query_fraction": info.fraction}
+
+    def extraction_data_digest(self) -> str:
+        return _load()[2]["sha256"]
+
+    def extract(self, grid_field, N) -> Extraction:
+        bool_network, float_network, info = _load()
+        udf_voxels = np.asarray(grid_field["udf"], dtype=np.float32) / np.float32(spacing(N))
+        with stage("undc_networks"):
+            out = undc.undc_predict(bool_network, float_network, udf_voxels)
+        return Extraction(index_to_world(out["vertices"], N), out["faces"],
+                          {"undc_edges": int(out["edge_flags"].sum()), "undc_cells": int(len(out["cells"])),
+                           "undc_weights": info["sha256"][:12]})

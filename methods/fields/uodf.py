@@ -1,0 +1,262 @@
+"""``uodf``: unsigned orthogonal distance fields (Lu et al., CVPR 2024) + the authors' point extraction
+and screened Poisson.
+
+Field: at a point x, for each axis a, the distance f_a(x) along the line x + t e_a to the nearest
+surface point on it, either way (``ExactFields.orthogonal_distances``). Network x (3) -> (f_x, f_y,
+f_z), the shared backbone with 3 outputs (the authors fit one network per axis).
+
+Targets: the exact distances, *truncated* to :data:`TRUNCATION` (2, the side of the canonical cube:
+no hit inside it is farther) where the axis line hits nothing; ``hit`` marks the axes that hit.
+Loss, the authors' three terms with their weights relative to the L1 (3e3 : 5e1 : 1e3)::
+
+    mean |min(f, 2) - min(d, 2)|                              (every sample, every axis)
+    + 50/3000   * mean_hit | |df_a/dx_a| - 1 |                (axis eikonal)
+    + 1000/3000 * mean_hit | f_a(x + s_a |f_a| e_a) |          (the predicted hit is on the surface)
+
+with s_a = +1 where df_a/dx_a < 0 (the surface lies towards +e_a), else -1 (not differentiated);
+``mean_hit`` over the (sample, axis) pairs whose line hits.
+
+Extraction (:func:`surface_points_along`, :func:`remove_outliers`, :func:`poisson_mesh`), per axis a
+along every grid line: each grid point predicts the hit c + s_a f_a e_a; a run of consecutive points
+with s_a = +1 followed by a point with s_a = -1 and f_a <= 1 (a crossing) gives the mean of the
+run's predicted hits if the run has >= 2 points; symmetrically the run of s_a = -1 after the
+crossing. Per crossing the second estimate is dropped when within ``dedupe`` h of the first. The
+three axes' points are then filtered (a point is an outlier when its nearest point of the other two
+axes is farther than 1.5 h *and* its second-nearest point of its own axis farther than 2 h), given
+PCA normals (10 neighbours), meshed by screened Poisson (depth round(log2 N); full depth 5, 8
+iterations, point weight 4, 1.5 samples per node, scale 1.1) and trimmed: vertices farther than
+``trim`` h (0.945 h, the authors' limit at their 257^3 grid) from the nearest point are removed
+with their faces.
+Oracle: the exact distances and sides on the grid (``ExactFields.grid_orthogonal_distances``).
+Neural: the sparse query of :mod:`methods.core.query` (criterion: some corner has min_a |f_a| below sqrt(3)
+times the block's half diagonal), then s_a = -sign(df_a/dx_a) by autograd at the evaluated points;
+far points get side 0, which ends every run.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from benchmark.grid import axis_coords, point_inputs, spacing
+from benchmark.params import Param
+from benchmark.timing import stage
+from methods.core import query
+from methods.base import Extraction, Method, register_method
+from methods.core.network import value_and_input_gradients
+from methods.extractors.mesh_ops import keep_vertices
+from methods.extractors.meshlab import poisson_depth
+
+#: Distance a target or exact grid field holds where the axis line hits nothing (the cube's side).
+TRUNCATION = 2.0
+#: Weights of the eikonal and hit-point terms relative to the L1 (the authors' 5e1 / 3e3, 1e3 / 3e3).
+EIKONAL_WEIGHT = 50.0 / 3000.0
+HIT_WEIGHT = 1000.0 / 3000.0
+#: A crossing gives a point only where the distance after it is at most this (canonical units).
+MAX_CROSSING_DISTANCE = 1.0
+#: Runs shorter than this give no point (the authors' ``postprocessingThreshold`` 1: length > 1).
+MIN_RUN = 2
+#: Trimming distance in units of h: the authors' squared limit 2 / res * 0.007 at their grid res = 257
+#: (h = 2 / 256), sqrt(0.014 / 257) / (2 / 256) = 0.945.
+TRIM_FACTOR = float(np.sqrt(0.014 / 257) * 128)
+
+
+# ------------------------------------------------------------------------------------------------
+# the network's field
+# ------------------------------------------------------------------------------------------------
+def values_and_axis_derivatives(model, x: torch.Tensor, create_graph: bool = True):
+    """(f (B, 3), df_a/dx_a (B, 3)): the outputs and, per output a, its derivative along axis a."""
+    f, grads = value_and_input_gradients(model, x, range(3), create_graph)
+    return f, torch.stack([grad[:, a] for a, grad in enumerate(grads)], dim=1)
+
+
+def predicted_hit_points(x: torch.Tensor, f: torch.Tensor, side: torch.Tensor) -> torch.Tensor:
+    """(3, B, 3): for each axis a, x + side_a |f_a| e_a, the hit the field predicts along a."""
+    eye = torch.eye(3, dtype=x.dtype, device=x.device)
+    return x[None] + (side * f.abs()).T[:, :, None] * eye[:, None, :]
+
+
+def side_from_derivative(derivative):
+    """+1 where the field decreases along the axis (surface towards +e_a), else -1 (the authors' rule)."""
+    if isinstance(derivative, torch.Tensor):
+        return torch.where(derivative < 0, 1.0, -1.0).to(derivative.dtype)
+    return np.where(derivative < 0, 1, -1).astype(np.int8)
+
+
+def near_surface(margin: float):
+    """Sparse-query block criterion: some corner has an axis distance |f_a| below ``margin``."""
+
+    def near(corners: np.ndarray) -> np.ndarray:
+        return np.abs(corners).min(axis=(-2, -1)) < margin
+
+    return near
+
+
+# ------------------------------------------------------------------------------------------------
+# extraction
+# ------------------------------------------------------------------------------------------------
+def _lines_along(array: np.ndarray, axis: int) -> np.ndarray:
+    """A grid array (N, N, N) as (N^2, N): grid lines along ``axis`` (other axes in order) by points."""
+    N = array.shape[0]
+    return np.moveaxis(array, axis, 2).reshape(N * N, N)
+
+
+def crossing_estimates(distance: np.ndarray, side: np.ndarray, coords: np.ndarray):
+    """Hit estimates along lines (L, N): the authors' run averages at each crossing.
+
+    ``distance``, ``side`` (L, N) along each line, ``coords`` (N,) the points' coordinates. A
+    crossing is a point pair (i - 1, i) with side +1 then -1. Returns, per crossing, (line id, i,
+    the first estimate, whether it counts, the second estimate, whether it counts): the first is the
+    mean predicted hit of the +1 run ending at i - 1, counted if the run has >= MIN_RUN points and
+    distance[i] <= MAX_CROSSING_DISTANCE; the second that of the -1 run starting at i, under the
+    mirrored conditions.
+    """
+    L, N = side.shape
+    predicted = coords[None, :] + side * distance  # the hit each point predicts
+    starts = np.ones((L, N), dtype=bool)
+    starts[:, 1:] = side[:, 1:] != side[:, :-1]
+    run = np.cumsum(starts.reshape(-1)) - 1  # run id of every point, runs never span two lines
+    length = np.bincount(run)
+    mean = np.bincount(run, weights=predicted.reshape(-1)) / length
+    line, i = np.nonzero((side[:, :-1] == 1) & (side[:, 1:] == -1))
+    i = i + 1
+    before, after = run[line * N + i - 1], run[line * N + i]
+    ok_before = (length[before] >= MIN_RUN) & (distance[line, i] <= MAX_CROSSING_DISTANCE)
+    ok_after = (length[after] >= MIN_RUN) & (distance[line, i - 1] <= MAX_CROSSING_DISTANCE)
+    return line, i, mean[before], ok_before, mean[after], ok_after
+
+
+def surface_points_along(distance: np.ndarray, side: np.ndarray, axis: int, dedupe: float) -> np.ndarray:
+    """Surface points (K, 3) read off one axis' field on the grid ((N, N, N) each): the crossing
+    estimates of every grid line along ``axis``, the second of a crossing dropped when within
+    ``dedupe`` of the first."""
+    N = distance.shape[0]
+    coords = axis_coords(N)
+    line, _, first, ok_first, second, ok_second = crossing_estimates(
+        _lines_along(distance, axis), _lines_along(side, axis), coords)
+    ok_second &= ~(ok_first & (np.abs(second - first) < dedupe))
+    line = np.concatenate([line[ok_first], line[ok_second]])
+    along = np.concatenate([first[ok_first], second[ok_second]])
+    others = [b for b in range(3) if b != axis]
+    points = np.empty((len(line), 3))
+    points[:, axis] = along
+    points[:, others[0]], points[:, others[1]] = coords[line // N], coords[line % N]
+    return points
+
+
+def remove_outliers(per_axis: list[np.ndarray], h: float) -> tuple[np.ndarray, int]:
+    """The authors' filter of the three axes' points: a point is removed when its nearest point of
+    the other two axes is farther than 1.5 h and its second-nearest other point of its own axis
+    farther than 2 h. Returns (kept points (K, 3), points removed)."""
+    from scipy.spatial import cKDTree
+
+    kept = []
+    for a, points in enumerate(per_axis):
+        if len(points) == 0:
+            continue
+        others = np.concatenate([per_axis[b] for b in range(3) if b != a])
+        far_other = cKDTree(others).query(points)[0] > 1.5 * h if len(others) else np.ones(len(points), bool)
+        if len(points) >= 3:
+            far_own = cKDTree(points).query(points, k=3)[0][:, 2] > 2.0 * h
+        else:
+            far_own = np.ones(len(points), bool)
+        kept.append(points[~(far_other & far_own)])
+    total = sum(len(p) for p in per_axis)
+    out = np.concatenate(kept) if kept else np.zeros((0, 3))
+    return out, total - len(out)
+
+
+def poisson_mesh(points: np.ndarray, depth: int, normal_k: int = 10) -> tuple[np.ndarray, np.ndarray]:
+    """Screened Poisson (pymeshlab) of ``points`` with PCA normals, the authors' MeshLab settings."""
+    from methods.extractors.meshlab import current_mesh, oriented_point_set
+
+    ms = oriented_point_set(points, normal_k)
+    with stage("poisson"):
+        ms.generate_surface_reconstruction_screened_poisson(depth=depth, fulldepth=5, iters=8, pointweight=4.0,
+                                                             samplespernode=1.5, scale=1.1, preclean=False,
+                                                             threads=1)
+    V, F, _ = current_mesh(ms)
+    return V, F
+
+
+def trim_far_vertices(V: np.ndarray, F: np.ndarray, points: np.ndarray, limit: float):
+    """Remove the vertices farther than ``limit`` from the nearest of ``points``, with every face
+    using one; returns (vertices, faces reindexed, vertices removed)."""
+    from scipy.spatial import cKDTree
+
+    return keep_vertices(V, F, cKDTree(points).query(V)[0] <= limit)
+
+
+# ------------------------------------------------------------------------------------------------
+# the method
+# ------------------------------------------------------------------------------------------------
+@register_method
+class UODFMethod(Method):
+    name = "uodf"
+    description = "unsigned orthogonal distance fields (3 axes) + UODF point extraction and screened Poisson"
+    input_kind = "points"
+    output_dim = 3
+    extractor = "UODF points + Poisson"
+    display_order = 45
+    color = "#e377c2"
+    parameters = {
+        "dedupe": Param(1.0, "a crossing's second estimate is dropped within this x h of the first", ge=0),
+        "normal_k": Param(10, "neighbours of the PCA normals before Poisson", ge=3),
+        "trim": Param(TRIM_FACTOR, "Poisson vertices farther than this x h from every point are removed", gt=0),
+        "stride": Param(query.DEFAULT_STRIDE, "coarse stride of the sparse query", ge=1, neural_only=True),
+    }
+
+    def training_targets(self, fields, samples) -> dict[str, np.ndarray]:
+        d, _ = fields.orthogonal_distances(samples.points)
+        hit = np.isfinite(d)
+        return {"distance": np.where(hit, d, TRUNCATION).astype(np.float32), "hit": hit.astype(np.float32)}
+
+    def predict(self, model, inputs):
+        """(f (B, 3), df_a/dx_a (B, 3), f_a at the predicted hit along a (B, 3))."""
+        f, derivative = values_and_axis_derivatives(model, inputs)
+        hits = predicted_hit_points(inputs, f, side_from_derivative(derivative.detach()))
+        at_hits = model(hits.reshape(-1, 3)).reshape(3, -1, 3)
+        return f, derivative, torch.diagonal(at_hits, dim1=0, dim2=2)
+
+    def loss(self, prediction, targets):
+        f, derivative, at_hits = prediction
+        d, hit = targets["distance"], targets["hit"]
+        l1 = (f.clamp(max=TRUNCATION) - d.clamp(max=TRUNCATION)).abs().mean()
+        count = hit.sum().clamp(min=1.0)
+        eikonal = ((derivative.abs() - 1.0).abs() * hit).sum() / count
+        on_surface = (at_hits.abs() * hit).sum() / count
+        return l1 + EIKONAL_WEIGHT * eikonal + HIT_WEIGHT * on_surface
+
+    def oracle_grid(self, fields, N, cache):
+        d, side = fields.grid_orthogonal_distances(N)
+        return {"distance": np.minimum(d, TRUNCATION).astype(np.float32), "side": side}, {}
+
+    def neural_grid(self, model, N, device=None):
+        stride = self.params["stride"]
+        margin = np.sqrt(3.0) * query.block_half_diagonal(N, stride)
+        with stage("values"):
+            values, evaluated, info = query.sparse_grid_points(model, N, near_surface(margin), device, stride=stride)
+        with stage("sides"):
+            side = np.zeros(values.shape, dtype=np.int8)
+            ijk = np.argwhere(evaluated)
+            points = point_inputs(N, ijk)
+            _, grads = query.evaluate_with_input_grads(model, points, range(3), device)
+            side[tuple(ijk.T)] = side_from_derivative(np.diagonal(grads, axis1=1, axis2=2))
+        return {"distance": np.abs(values), "side": side}, {"query_fraction": info.fraction}
+
+    def extract(self, grid_field, N) -> Extraction:
+        h = spacing(N)
+        distance, side = grid_field["distance"], grid_field["side"]
+        with stage("points"):
+            per_axis = [surface_points_along(distance[..., a], side[..., a], a, self.params["dedupe"] * h)
+                        for a in range(3)]
+        with stage("filter"):
+            points, removed = remove_outliers(per_axis, h)
+        info = {"surface_points": int(sum(len(p) for p in per_axis)), "outlier_points": removed}
+        if len(points) < 4 * self.params["normal_k"]:
+            return Extraction(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), info)
+        depth = poisson_depth(N)
+        V, F = poisson_mesh(points, depth, self.params["normal_k"])
+        with stage("trim"):
+            V, F, trimmed = trim_far_vertices(V, F, points, self.params["trim"] * h)
+        return Extraction(V, F, {**info, "poisson_depth": depth, "trimmed_vertices": trimmed})

@@ -1,0 +1,75 @@
+"""``sals-knn``: the SALS K-NN network of point-cloud reconstruction + E-DC.
+
+A segment (u, v) and the K nearest input points of its midpoint go through
+:class:`methods.pointcloud.knn.network.SegmentKNNNetwork` to two logits (o, s), trained once across many shapes
+(:mod:`methods.pointcloud.knn.training`) with SALS's labels and loss (``methods.core.segment_field.segment_targets`` /
+``segment_loss``: 10 L1(s | o = 1) + BCE(o)). Inference on a cloud: only the grid edges whose
+midpoint lies within ``band`` h of an input point are queried (the paper: 4 h; the others are "no
+hit"); an edge is intersected when o_hat > ``o_threshold`` (the paper's evaluation value 0.3);
+normals by autograd of s w.r.t. the endpoint nearer the hit; E-DC (``methods.extractors.edc``) as in the
+encoding task. The points are never subsampled.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.special import expit
+
+from benchmark.grid import spacing
+from benchmark.timing import record, stage
+from methods.base import Extraction, register_method
+from methods.pointcloud.knn.training import KNNTrainedMethod
+from methods.pointcloud.knn.query import band_edges, evaluate_knn, knn_k
+from benchmark.params import Param
+from benchmark.grid import edge_inputs
+from methods.core.segment_field import nearer_endpoint_normals, segment_loss, segment_targets
+
+
+@register_method
+class SALSKNNMethod(KNNTrainedMethod):
+    name = "sals-knn"
+    description = "SALS K-NN local network (trained across shapes) + E-DC, from a raw point cloud"
+    network_kind = "segment"
+    input_kind = "segments"
+    output_dim = 2
+    extractor = "E-DC"
+    display_order = 140
+    color = "#b8321a"
+    parameters = {
+        "o_threshold": Param(0.3, "an edge is intersected when o_hat > this (the paper's evaluation value)",
+                             gt=0, lt=1),
+        "band": Param(4.0, "edges whose midpoint is within this many h of an input point are queried", gt=0),
+        "normals": Param(True, "E-DC vertices from the QEF with autograd normals (else mass points)"),
+        "qef_cutoff": Param(0.1, "eigenvalues of A^T A below this are dropped in the QEF", ge=0),
+        "faces": Param("fan4", "E-DC face rule (see methods.fields.sals)", choices=("fan4", "quad2", "fan4-adaptive")),
+    }
+
+    def training_targets(self, fields, samples) -> dict[str, np.ndarray]:
+        return segment_targets(fields, samples.segments)
+
+    def loss(self, prediction, targets):
+        return segment_loss(prediction, targets)
+
+    def reconstruct(self, points, N, device=None, seed=0, model=None) -> Extraction:
+        from methods.extractors.edc import edc_extract
+
+        if model is None:
+            raise ValueError("sals-knn reconstructs with a trained network: none given")
+        k = knn_k(model)
+        with stage("band"):
+            ids = band_edges(points, N, self.params["band"] * spacing(N))
+            segments = edge_inputs(N, ids).reshape(-1, 2, 3)
+        with stage("field"):
+            out, _ = evaluate_knn(model, segments, points, k, device)
+            hit = expit(out[:, 0].astype(np.float64)) > self.params["o_threshold"]
+            ids, segments = ids[hit], segments[hit]
+            s = expit(out[hit, 1].astype(np.float64)).astype(np.float32)
+        normals = None
+        if self.params["normals"] and len(ids):
+            with stage("normals"):
+                _, grad = evaluate_knn(model, segments, points, k, device, grad_output=1)
+                normals = nearer_endpoint_normals(s, grad.reshape(-1, 6))
+        V, F, steps = edc_extract(N, ids, s, normals, qef_cutoff=self.params["qef_cutoff"], faces=self.params["faces"])
+        for step, seconds in steps.items():
+            record(step, seconds)
+        return Extraction(V, F, info={"queried_edges": int(len(hit)), "intersected_edges": int(len(ids))})

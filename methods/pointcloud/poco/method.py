@@ -1,0 +1,352 @@
+"""``poco``: POCO, Point Convolution for Surface Reconstruction (Boulch & Marlet, CVPR 2022), written
+here after the authors' code (github.com/valeoai/POCO), not copied from it.
+
+Network (:mod:`methods.pointcloud.poco.network`): an FKAConv point-convolution U-Net gives every input point a
+latent vector; a query's occupancy comes from the latents of its K nearest input points and its
+offsets to them, aggregated with learned attention weights, as two logits (outside, inside).
+
+Training (:func:`train_poco`): once across the training shapes, on the pools of
+:class:`methods.pointcloud.knn.training.TrainingPools` (the shared five-group sampler's points, labelled inside
+where the generalised winding number of the mesh exceeds 1/2, ``ExactFields.occupancy``, and
+area-uniform surface points). Each step takes ``batch`` items; an item is a training shape's cloud of
+``input_points`` surface points (drawn without replacement from its pool) and ``queries`` labelled
+points, both turned by one random rotation (three axis rotations, each angle uniform in
+[-180, 180] degrees, as the authors' ABC configuration). Loss: cross-entropy of the two logits; Adam
+at a constant learning rate (the authors' ``train.py``).
+
+Reconstruction (:meth:`POCOMethod.reconstruct`):
+
+1. latents (:func:`point_latents`): the network was trained on clouds of ``input_points`` points,
+   so a larger test cloud is covered by random subsets of that size until every point's latent has
+   been computed ``views`` times, then averaged (the authors' ``gen_subsample_manifold``, 10 views);
+2. the grid points within ``band`` h of an input point get the network's probability of inside
+   (softmax of the logits; the K nearest input points among the whole cloud); every other grid point
+   is outside if its connected far region touches the grid's border, inside otherwise
+   (:func:`methods.extractors.marching_cubes.far_occupancy`);
+3. marching cubes at 0.5 (:func:`methods.extractors.marching_cubes.marching_cubes_grid`);
+4. every vertex on a grid edge between two queried points moves to the network's 0.5 crossing on
+   that edge by ``refine_steps`` bisection steps starting at the marching-cubes vertex (the authors'
+   ``refine_iter``, 10).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from benchmark.grid import LOWER, spacing
+from benchmark.params import Param, check_fields, setting
+from benchmark.sampler import GROUPS
+from benchmark.timing import stage
+from methods.base import Extraction, register_method
+from methods.core.device import get_device, seeded_generator
+from methods.pointcloud.knn.network import knn_neighbourhoods
+from methods.pointcloud.knn.query import band_points
+from methods.pointcloud.knn.training import KNNTrainResult, TrainingPools, get_knn_budget
+from methods.extractors.marching_cubes import far_occupancy, marching_cubes_grid
+from methods.pointcloud.own_network import OwnNetworkMethod
+from methods.pointcloud.poco.network import POCONetwork, batch_structures, cloud_structure, make_poco_network
+from benchmark.grid import point_inputs
+from methods.core.training_loop import run_steps
+
+__all__ = ["POCOConfig", "POCO_CONFIGS", "poco_config", "random_rotation", "draw_batch", "train_poco",
+           "point_latents", "inside_probability", "refine_vertices", "POCOMethod"]
+
+
+@dataclass(frozen=True)
+class POCOConfig:
+    """POCO's architecture and schedule at one budget (:data:`POCO_CONFIGS`, keyed by the
+    :class:`methods.pointcloud.knn.network.KNNBudget` name; the budget gives the training set and its pools)."""
+
+    name: str = setting(Param(kind=str, help="budget name"))
+    hidden: int = setting(Param(kind=int, help="backbone width at level 0 (doubles per level)", ge=2))
+    levels: int = setting(Param(kind=int, help="subsampled backbone levels (ratio 1/4 each)", ge=0))
+    conv_k: int = setting(Param(kind=int, help="neighbours of an FKAConv support point", ge=1))
+    latent: int = setting(Param(kind=int, help="latent vector size per input point", ge=1))
+    decoder_k: int = setting(Param(kind=int, help="input points a query's occupancy aggregates", ge=1))
+    heads: int = setting(Param(kind=int, help="attention heads of the decoder", ge=1))
+    input_points: int = setting(Param(kind=int, help="points of a training item's cloud and of an inference view", ge=1))
+    queries: int = setting(Param(kind=int, help="labelled query points per training item", ge=1))
+    batch: int = setting(Param(kind=int, help="training items per step", ge=1))
+    steps: int = setting(Param(kind=int, help="optimizer steps", ge=1))
+    lr: float = setting(Param(1e-3, "Adam learning rate (constant)", gt=0))
+    rotate: bool = setting(Param(True, "turn every training item by a random rotation"))
+    log_every: int = setting(Param(50, "steps between loss reports", ge=1))
+
+    def __post_init__(self):
+        check_fields(self, f"poco config '{self.name}'")
+        if self.input_points < self.decoder_k:
+            raise ValueError(f"poco config '{self.name}': input_points {self.input_points} < decoder_k {self.decoder_k}")
+
+    def network_config(self) -> dict:
+        """Keyword arguments of :func:`methods.pointcloud.poco.network.make_poco_network`."""
+        return dict(hidden=self.hidden, levels=self.levels, conv_k=self.conv_k, latent=self.latent,
+                    decoder_k=self.decoder_k, heads=self.heads, input_points=self.input_points)
+
+
+#: *paper*: the authors' ABC configuration (``configs/config_abc.yaml`` over ``config_default.yaml``):
+#: FKAConv backbone of width 64 and 4 subsampled levels (64 .. 1024 channels), 16 neighbours per
+#: convolution, latent 32, decoder K 64 with 64 heads, items of 3,000 input points and 2,000
+#: labelled queries, batches of 16, Adam 1e-3 for 100k steps (``training_iter_nbr``; the ABC
+#: file's ``iter_nbr`` is read by nothing). *cpu*: training within ~15 min on one core: width 32
+#: (the FKAConv alignment, whose cost does not depend on the width, dominates), the paper's levels,
+#: convolution K and item clouds, decoder K 32 with 16 heads, items of 1,024 queries, batches of 4,
+#: 1,200 steps. *tiny*: tests (seconds).
+POCO_CONFIGS: dict[str, POCOConfig] = {c.name: c for c in (
+    POCOConfig("paper", hidden=64, levels=4, conv_k=16, latent=32, decoder_k=64, heads=64, input_points=3_000,
+               queries=2_000, batch=16, steps=100_000, lr=1e-3, log_every=500),
+    POCOConfig("cpu", hidden=32, levels=4, conv_k=16, latent=32, decoder_k=32, heads=16, input_points=3_000,
+               queries=1_024, batch=4, steps=1_200, lr=1e-3, log_every=50),
+    POCOConfig("tiny", hidden=16, levels=2, conv_k=8, latent=16, decoder_k=16, heads=8, input_points=500,
+               queries=512, batch=4, steps=300, lr=3e-3, rotate=True, log_every=25),
+)}
+
+
+def poco_config(budget) -> POCOConfig:
+    """The :class:`POCOConfig` of a budget (its name, or a ``KNNBudget``)."""
+    name = budget if isinstance(budget, str) else budget.name
+    if name not in POCO_CONFIGS:
+        raise ValueError(f"poco has no configuration for budget '{name}'; known: {', '.join(POCO_CONFIGS)}")
+    return POCO_CONFIGS[name]
+
+
+# --------------------------------------------------------------------------------------------------
+# Training
+# --------------------------------------------------------------------------------------------------
+
+def random_rotation(rng: np.random.Generator) -> np.ndarray:
+    """(3, 3) rotation ``Rz Ry Rx``, each angle uniform in [-pi, pi] (the authors' augmentation)."""
+    a, b, c = rng.uniform(-np.pi, np.pi, size=3)
+    rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    ry = np.array([[np.cos(b), 0, np.sin(b)], [0, 1, 0], [-np.sin(b), 0, np.cos(b)]])
+    rz = np.array([[np.cos(c), -np.sin(c), 0], [np.sin(c), np.cos(c), 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def _draw(rows: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
+    """``count`` of ``rows``, without replacement when there are enough."""
+    return rng.choice(rows, size=count, replace=count > len(rows))
+
+
+def draw_batch(pools: TrainingPools, config: POCOConfig, rng: np.random.Generator):
+    """One training batch: clouds (B, input_points, 3), queries (B, queries, 3) float32 and their
+    occupancy labels (B, queries) int64; B = ``config.batch`` distinct shapes (repeats only when
+    there are fewer), each item turned by its own :func:`random_rotation` when ``config.rotate``."""
+    n = len(pools.pools)
+    chosen = rng.choice(n, size=config.batch, replace=config.batch > n)
+    clouds, queries, labels = [], [], []
+    for index in chosen:
+        pool = pools.pools[index]
+        cloud = pool.cloud[rng.choice(len(pool.cloud), size=config.input_points, replace=False)]
+        volume = pool.targets["volume"] > 0.5
+        half = config.queries // 2
+        rows = np.concatenate([_draw(np.flatnonzero(volume), half, rng),
+                               _draw(np.flatnonzero(~volume), config.queries - half, rng)])
+        rotation = (random_rotation(rng) if config.rotate else np.eye(3)).astype(np.float32)
+        clouds.append(cloud @ rotation.T)
+        queries.append(pool.anchors[rows] @ rotation.T)
+        labels.append(pool.targets["occupancy"][rows] > 0.5)
+    return np.stack(clouds), np.stack(queries), np.stack(labels).astype(np.int64)
+
+
+def train_poco(method, shapes: Sequence, budget, seed: int = 0, device=None,
+               progress: Callable[..., None] | None = None) -> KNNTrainResult:
+    """Train POCO across ``shapes`` (module docstring) at ``budget`` (a ``KNNBudget`` or its name:
+    its training pools; the architecture and schedule of :func:`poco_config`).
+
+    ``seed``: the pools, the network's initialisation (:func:`methods.core.device.seeded_generator`) and
+    every batch draw (``SeedSequence(seed).spawn(2)[1]``); on the CPU the same seed gives the same
+    weights. ``progress(step=..., loss=..., total=steps)`` every ``log_every`` steps. Returns a
+    :class:`methods.pointcloud.knn.training.KNNTrainResult` (model in eval mode)."""
+    budget = get_knn_budget(budget)
+    config = poco_config(budget)
+    device = get_device(device)
+    pools = TrainingPools(method, shapes, budget, seed)
+    if min(len(p.cloud) for p in pools.pools) < config.input_points:
+        raise ValueError(f"poco at budget '{budget.name}': pool_points {budget.pool_points} < input_points "
+                         f"{config.input_points}")
+    seeded_generator(seed, device)
+    rng = np.random.default_rng(np.random.SeedSequence(int(seed)).spawn(2)[1])
+    model = make_poco_network(**config.network_config()).to(device)
+    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
+
+    def step_loss(step: int) -> torch.Tensor:
+        clouds, queries, labels = draw_batch(pools, config, rng)
+        structures = batch_structures([cloud_structure(c, config.levels, config.conv_k) for c in clouds], device)
+        index = np.stack([knn_neighbourhoods(c, q, config.decoder_k) for c, q in zip(clouds, queries)])
+        logits = model(structures, torch.from_numpy(queries).to(device), torch.from_numpy(index).to(device))
+        return method.loss(logits.reshape(-1, 2), {"occupancy": torch.from_numpy(labels.reshape(-1)).to(device)})
+
+    T = config.steps
+    report = None if progress is None else lambda step, loss: progress(step=step, loss=loss, total=T)
+    result = run_steps(model, optimizer, T, step_loss, log_every=config.log_every,
+                       where=lambda i: f"step {i} of {T} (method '{method.name}', budget '{budget.name}', seed {seed})",
+                       progress=report, device=device)
+    return KNNTrainResult(model=model, losses=result.losses, seconds=result.seconds, steps=T,
+                          samples_per_s=T * config.batch * config.queries / max(result.seconds, 1e-9),
+                          final_loss=result.final_loss, pool_seconds=pools.seconds)
+
+
+# --------------------------------------------------------------------------------------------------
+# Inference
+# --------------------------------------------------------------------------------------------------
+
+def point_latents(model: POCONetwork, points: np.ndarray, views: int, rng: np.random.Generator,
+                  device=None) -> tuple[np.ndarray, int]:
+    """(latents (P, latent) float32 of every input point, backbone passes).
+
+    A cloud of at most ``model.input_points`` points takes one pass. A larger one is covered by
+    subsets of ``input_points`` points: for view v = 0..views-1, while some point has fewer than
+    v + 1 latents, a subset draws (without replacement) from the points with exactly v, filled up
+    with random other points; each point's latents are averaged (the authors' test-time
+    ``gen_subsample_manifold``)."""
+    points = np.asarray(points, dtype=np.float32)
+    device = device or next(model.parameters()).device
+    P, n = len(points), model.input_points
+    config = model.config
+
+    def latents_of(ids: np.ndarray) -> np.ndarray:
+        structure = batch_structures([cloud_structure(points[ids], config["levels"], config["conv_k"])], device)
+        with torch.inference_mode():
+            return model.latents(structure)[0].float().cpu().numpy()
+
+    if P <= n:
+        return latents_of(np.arange(P)), 1
+    sums = np.zeros((P, config["latent"]), dtype=np.float64)
+    counts = np.zeros(P, dtype=np.int64)
+    passes = 0
+    for view in range(int(views)):
+        while counts.min() < view + 1:
+            pending = np.flatnonzero(counts == view)
+            ids = rng.choice(pending, size=min(n, len(pending)), replace=False)
+            if len(ids) < n:
+                others = np.setdiff1d(np.arange(P), ids, assume_unique=True)
+                ids = np.concatenate([ids, rng.choice(others, size=n - len(ids), replace=False)])
+            sums[ids] += latents_of(ids)
+            counts[ids] += 1
+            passes += 1
+    return (sums / counts[:, None]).astype(np.float32), passes
+
+
+def inside_probability(model: POCONetwork, points: np.ndarray, latents: np.ndarray, queries: np.ndarray,
+                       device=None, chunk: int = 8_192) -> np.ndarray:
+    """(Q,) float32 probability of inside (softmax of the two logits) of ``queries`` (Q, 3) from the
+    ``latents`` (P, C) of ``points`` (P, 3), each query with its ``decoder_k`` nearest input points."""
+    queries = np.ascontiguousarray(queries, dtype=np.float32)
+    if len(queries) == 0:
+        return np.zeros(0, dtype=np.float32)
+    device = device or next(model.parameters()).device
+    with stage("knn"):
+        index = knn_neighbourhoods(points, queries, model.decoder_k)
+    cloud = torch.from_numpy(np.asarray(points, dtype=np.float32)).to(device)[None]
+    codes = torch.from_numpy(np.asarray(latents, dtype=np.float32)).to(device)[None]
+    out = []
+    with torch.inference_mode():
+        for i in range(0, len(queries), chunk):
+            q = torch.from_numpy(queries[i:i + chunk]).to(device)[None]
+            k = torch.from_numpy(index[i:i + chunk]).to(device)[None]
+            out.append(torch.softmax(model.decode(codes, cloud, q, k)[0], dim=-1)[:, 1].float().cpu().numpy())
+    return np.concatenate(out)
+
+
+def refine_vertices(vertices: np.ndarray, volume: np.ndarray, known: np.ndarray, probability: Callable,
+                    steps: int) -> tuple[np.ndarray, int]:
+    """Move marching-cubes vertices to the 0.5 crossing of ``probability`` on their grid edge.
+
+    A vertex (canonical frame) lies on the grid edge between points i1 and i2 = i1 + e_axis; where both
+    are ``known`` (queried), ``steps`` bisection steps run between the two points, the first
+    evaluation at the vertex itself: the side (probability > 0.5) of each evaluation replaces the edge
+    end of the same side, and the vertex becomes the midpoint of the two ends (the authors'
+    ``refine_iter``). ``volume`` (N, N, N): the grid probabilities; ``probability(x (M, 3)) -> (M,)``.
+    Returns (vertices, number of refined vertices).
+    """
+    vertices = np.array(vertices, dtype=np.float64)
+    N = volume.shape[0]
+    if steps <= 0 or len(vertices) == 0:
+        return vertices, 0
+    h = spacing(N)
+    u = (vertices - LOWER) / h
+    r = np.rint(u)
+    off = np.abs(u - r) > 1e-6
+    on_edge = off.sum(axis=1) == 1
+    i1 = np.where(off, np.floor(u), r).astype(np.int64)
+    i1 = np.clip(i1, 0, N - 1)
+    i2 = np.clip(i1 + off, 0, N - 1)
+    on_edge &= known[tuple(i1.T)] & known[tuple(i2.T)]
+    if not on_edge.any():
+        return vertices, 0
+    i1, i2 = i1[on_edge], i2[on_edge]
+    x1, x2 = LOWER + i1 * h, LOWER + i2 * h
+    inside1 = volume[tuple(i1.T)] > 0.5
+    v = vertices[on_edge]
+    for _ in range(int(steps)):
+        same1 = (probability(v) > 0.5) == inside1
+        x1[same1] = v[same1]
+        x2[~same1] = v[~same1]
+        v = 0.5 * (x1 + x2)
+    vertices[on_edge] = v
+    return vertices, int(on_edge.sum())
+
+
+@register_method
+class POCOMethod(OwnNetworkMethod):
+    name = "poco"
+    description = "POCO: FKAConv point-convolution latents + attention decoder to occupancy, marching cubes"
+    network_kind = "point"
+    output_dim = 2
+    extractor = "marching cubes"
+    display_order = 180
+    color = "#5b8c2a"
+    network_label = "POCO"
+    build_network = staticmethod(make_poco_network)
+    training_modules = ("methods.pointcloud.poco.network", "methods.pointcloud.knn.training")
+    parameters = {
+        "band": Param(3.0, "grid points within this many h of an input point are queried", gt=0),
+        "views": Param(10, "latents computed (and averaged) per input point over random subsets", ge=1),
+        "refine_steps": Param(10, "bisection steps moving each vertex to the network's 0.5 crossing", ge=0),
+    }
+
+    def training_targets(self, fields, samples) -> dict[str, np.ndarray]:
+        """The occupancy of every sample and whether it is a volume sample (1: the sampler's
+        ``bbox`` or ``space`` groups, 0: a surface group), so a batch can take half of each."""
+        volume = [i for i, group in enumerate(GROUPS) if group[2] != "surface"]
+        return {"occupancy": np.asarray(fields.occupancy(samples.points), dtype=np.float32),
+                "volume": np.isin(samples.group, volume).astype(np.float32)}
+
+    def loss(self, prediction, targets):
+        """Cross-entropy of the (B, 2) logits [outside, inside] against the labels (B,) (0/1)."""
+        return F.cross_entropy(prediction, targets["occupancy"].long())
+
+    def train_network(self, shapes, budget, seed, device=None, progress=None) -> KNNTrainResult:
+        return train_poco(self, shapes, budget, seed=seed, device=device, progress=progress)
+
+    def architecture(self, budget):
+        return poco_config(budget)
+
+    def reconstruct(self, points, N, device=None, seed=0, model=None) -> Extraction:
+        model, device = self.network_on_device(model, device)
+        points = self.checked_points(points)
+        if len(points) < model.decoder_k:
+            raise ValueError(f"poco: {len(points)} points, fewer than the decoder's {model.decoder_k} neighbours")
+        with stage("latents"):
+            latents, passes = point_latents(model, points, self.params["views"], np.random.default_rng(seed), device)
+
+        def probability(x):
+            return inside_probability(model, points, latents, x, device)
+
+        with stage("band"):
+            ijk = band_points(points, N, self.params["band"] * spacing(N))
+        with stage("field"):
+            known = np.zeros((N, N, N), dtype=bool)
+            known[tuple(ijk.T)] = True
+            volume = far_occupancy(known)
+            volume[tuple(ijk.T)] = probability(point_inputs(N, ijk))
+        V, Fc = marching_cubes_grid(volume, 0.5, inside="high")
+        with stage("refine"):
+            V, refined = refine_vertices(V, volume, known, probability, self.params["refine_steps"])
+        return Extraction(V, Fc, info={"queried_points": int(len(ijk)), "backbone_passes": int(passes),
+                                       "refined_vertices": refined})
