@@ -16,6 +16,11 @@ One :class:`numpy.random.SeedSequence` per (shape, seed)::
   (:meth:`methods.base.Method.calibrate`, e.g. SALS's per-shape o threshold). Spawned fourth, so
   the three streams above are those of a three-way spawn.
 
+A network trained once across shapes (the learned point-cloud methods, the UNDC networks) draws
+from its training seed alone: ``pools, batches = SeedSequence(seed).spawn(2)``
+(:func:`training_streams`); training shape i of n labels its pools from ``pools.spawn(n)[i]``, and
+every batch draw comes from one Generator of ``batches``.
+
 The shape enters by its content hash (``benchmark.storage.mesh_hash``), never by its name or position,
 so results do not depend on the order of shapes, the executor or the process.
 """
@@ -64,3 +69,25 @@ class JobStreams:
 def job_streams(shape_hash: str, seed: int) -> JobStreams:
     """Spawn the sampler, fitting, metric and calibration streams of (shape, seed)."""
     return JobStreams(*job_seed_sequence(shape_hash, seed).spawn(4))
+
+
+@dataclass(frozen=True)
+class TrainingStreams:
+    """The streams of a network trained once across shapes from one training ``seed``: ``pools``
+    spawns one child per training shape (its samples, labels and surface points), ``batches``
+    seeds the Generator of every batch draw."""
+
+    pools: np.random.SeedSequence
+    batches: np.random.SeedSequence
+
+    def shape_streams(self, count: int) -> list[np.random.SeedSequence]:
+        """The pool streams of ``count`` training shapes, shape i's at index i."""
+        return self.pools.spawn(int(count))
+
+    def batch_rng(self) -> np.random.Generator:
+        return np.random.default_rng(self.batches)
+
+
+def training_streams(seed: int) -> TrainingStreams:
+    """``SeedSequence(seed).spawn(2)``: the pool and batch streams of a training seed."""
+    return TrainingStreams(*np.random.SeedSequence(int(seed)).spawn(2))

@@ -6,16 +6,16 @@ whose endpoints change sign, normals from central differences of the SDF) on the
 benchmark.grid. Compares, at N = 64 and 128:
 
 * scikit-image ``marching_cubes`` on the SDF grid (the reference),
-* oracle E-DC (:func:`methods.extractors.edc.edc_extract`, steps 2, 4, 5; the field is given),
-* MeshUDF-style extraction (:func:`methods.extractors.meshudf.meshudf_extract`) on the UDF grid,
-* DualMesh-UDF (:func:`methods.extractors.dualmesh.dualmesh_extract`) on the UDF grid, with the analytic UDF
+* oracle E-DC (:func:`methods.extractors.edc.edge_dual_contouring`, steps 2, 4, 5; the field is given),
+* MeshUDF-style extraction (:func:`methods.extractors.meshudf.meshudf_marching_cubes`) on the UDF grid,
+* DualMesh-UDF (:func:`methods.extractors.dualmesh.dualmesh_udf`) on the UDF grid, with the analytic UDF
   and its gradient at its samples; ``main`` reports its time without those queries and the queries
   apart (in a run they are the network's, part of the extraction),
 * NDC (:mod:`methods.extractors.ndc`: its CNN on the cells that change sign, then dual contouring) on the SDF
   grid, where NDC's published weights are found,
 * UNDC (the ``udf-ndc`` method: its two CNNs on the UDF grid, then dual contouring of the flagged
   edges), where its weights are found,
-* DCUDF (:func:`methods.extractors.dcudf.dcudf_extract`) on the UDF grid, the authors' r, the ``udf-dcudf``
+* DCUDF (:func:`methods.extractors.dcudf.dcudf`) on the UDF grid, the authors' r, the ``udf-dcudf``
   method's default iterations, the analytic UDF and its gradient at the moving vertices; one round
   (its optimisation takes seconds to minutes), ``main`` reports it once per N with the queries apart.
 
@@ -34,10 +34,11 @@ import pytest
 from skimage.measure import marching_cubes
 
 from benchmark.grid import edge_endpoint_values, edge_endpoints, grid_points, spacing
-from methods.extractors.edc import edc_extract
-from methods.extractors.dcudf import authors_r, dcudf_extract
-from methods.extractors.dualmesh import dualmesh_extract
-from methods.extractors.meshudf import meshudf_extract
+from benchmark.timing import StageTimer
+from methods.extractors.edc import edge_dual_contouring
+from methods.extractors.dcudf import authors_r, dcudf
+from methods.extractors.dualmesh import dualmesh_udf
+from methods.extractors.meshudf import meshudf_marching_cubes
 from methods.base import METHODS, get_method
 from methods.fields.udf_dcudf import CPU_ITERATIONS
 
@@ -102,15 +103,15 @@ def test_skimage_marching_cubes(benchmark, N):
 def test_edc_oracle(benchmark, N):
     _, _, _, ids, s, normals = fields(N)
     benchmark.extra_info["intersected_edges"] = int(len(ids))
-    verts, faces, _ = benchmark(edc_extract, N, ids, s, normals)
-    assert len(faces) > 0
+    extraction = benchmark(edge_dual_contouring, N, ids, s, normals)
+    assert len(extraction.faces) > 0
 
 
 @pytest.mark.parametrize("N", RESOLUTIONS)
 def test_meshudf(benchmark, N):
     _, udf, grad, _, _, _ = fields(N)
-    verts, faces, _ = benchmark(meshudf_extract, udf, grad)
-    assert len(faces) > 0
+    extraction = benchmark(meshudf_marching_cubes, udf, grad)
+    assert len(extraction.faces) > 0
 
 
 def heat_sink_udf_grad(points):
@@ -137,13 +138,13 @@ def dualmesh_on_heat_sink(udf: np.ndarray, query_seconds: list | None = None):
     """DualMesh-UDF on the heat sink; the seconds spent in the analytic field's queries are appended
     to ``query_seconds`` when given (they stand for a network's queries in a run)."""
     timed = _timed(query_seconds)
-    return dualmesh_extract(udf, timed(heat_sink_udf_grad), timed(lambda p: np.abs(heat_sink_sdf(p))))
+    return dualmesh_udf(udf, timed(heat_sink_udf_grad), timed(lambda p: np.abs(heat_sink_sdf(p))))
 
 
 @pytest.mark.parametrize("N", RESOLUTIONS)
 def test_dualmesh(benchmark, N):
-    verts, faces, _ = benchmark(dualmesh_on_heat_sink, fields(N)[1])
-    assert len(faces) > 0
+    extraction = benchmark(dualmesh_on_heat_sink, fields(N)[1])
+    assert len(extraction.faces) > 0
 
 
 #: The ``sdf-ndc`` method, which runs NDC on an SDF grid (canonical units); None without NDC's weights.
@@ -174,15 +175,23 @@ def dcudf_on_heat_sink(udf: np.ndarray, query_seconds: list | None = None):
     """DCUDF on the heat sink (the authors' r at this N, :data:`CPU_ITERATIONS` iterations); the
     analytic field's query seconds are appended to ``query_seconds`` when given."""
     N, timed = udf.shape[0], _timed(query_seconds)
-    return dcudf_extract(udf, timed(heat_sink_udf_grad), timed(lambda p: np.abs(heat_sink_sdf(p))),
-                         r=authors_r(N), iterations=CPU_ITERATIONS)
+    return dcudf(udf, timed(heat_sink_udf_grad), timed(lambda p: np.abs(heat_sink_sdf(p))),
+                 r=authors_r(N), iterations=CPU_ITERATIONS)
 
 
 @pytest.mark.parametrize("N", RESOLUTIONS)
 def test_dcudf(benchmark, N):
-    verts, faces, facts = benchmark.pedantic(dcudf_on_heat_sink, args=(fields(N)[1],), rounds=1, iterations=1)
-    benchmark.extra_info.update(facts)
-    assert len(faces) > 0
+    extraction = benchmark.pedantic(dcudf_on_heat_sink, args=(fields(N)[1],), rounds=1, iterations=1)
+    benchmark.extra_info.update(extraction.info)
+    assert len(extraction.faces) > 0
+
+
+def edc_step_seconds(N, ids, s, normals) -> dict[str, float]:
+    """Seconds of each step of E-DC on the given edges (``edge_points``, ``qef``, ``faces``)."""
+    timer = StageTimer()
+    with timer.active():
+        edge_dual_contouring(N, ids, s, normals)
+    return {key.removesuffix("_s"): seconds for key, seconds in timer.seconds.items()}
 
 
 def _median_time(fn, repeats):
@@ -201,8 +210,8 @@ def main(repeats: int = 15):
         stages = []
         for _ in range(repeats):  # interleaved so that machine load hits all alike
             mc.append(_median_time(lambda: marching_cubes(sdf, 0.0), 1))
-            edc.append(_median_time(lambda: stages.append(edc_extract(N, ids, s, normals)[2]), 1))
-            mu.append(_median_time(lambda: meshudf_extract(udf, grad), 1))
+            edc.append(_median_time(lambda: stages.append(edc_step_seconds(N, ids, s, normals)), 1))
+            mu.append(_median_time(lambda: meshudf_marching_cubes(udf, grad), 1))
             queries = []
             dm.append(_median_time(lambda: dualmesh_on_heat_sink(udf, queries), 1) - sum(queries))
             dm_queries.append(sum(queries))

@@ -21,12 +21,14 @@ from __future__ import annotations
 import importlib
 import pkgutil
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Mapping
 
 import numpy as np
 
 from benchmark.registry import Registry
 from benchmark.params import Param, ParamError
+from methods.core.budgets import BUDGET_FAMILIES, BudgetFamily
+from methods.core.device import get_device
 
 
 def median_angle_deg(a: np.ndarray, b: np.ndarray, oriented: bool = False) -> float:
@@ -111,6 +113,10 @@ class Method:
     #: The name its fitted weights are keyed and stored under: :attr:`fit_of`, else its own (set
     #: for every subclass).
     fit_name: ClassVar[str] = ""
+    #: The budget family whose records the method's fit or training reads (:class:`BudgetFamily`;
+    #: ``'encode'``: the per-shape fit of :mod:`methods.core.fitting`); None: the method fits and
+    #: trains nothing, so no budget applies to it.
+    budget_family: ClassVar[str | None] = "encode"
 
     def __init_subclass__(cls, **kwargs: Any):
         super().__init_subclass__(**kwargs)
@@ -124,6 +130,23 @@ class Method:
         self.params = {k: p.default for k, p in self.parameters.items()}
         for key, value in params.items():
             self.params[key] = self.parameters[key].parse(value, f"{self.name}.{key}")
+
+    @classmethod
+    def budget_fields(cls) -> frozenset[str]:
+        """The budget fields a run may change that this method reads: those of its family."""
+        if cls.budget_family is None:
+            return frozenset()
+        return frozenset(budget_family(cls.budget_family).params)
+
+    @classmethod
+    def budget(cls, name: str, overrides: Mapping[str, Any] | None = None):
+        """The record named ``name`` of the method's budget family with the ``overrides`` it reads
+        applied (typed, range-checked; the others are not this method's and are left out); None for
+        a method without a budget family. An unknown name raises with the family's known names."""
+        if cls.budget_family is None:
+            return None
+        mine = {k: v for k, v in (overrides or {}).items() if k in cls.budget_fields()}
+        return budget_family(cls.budget_family).get(name, mine)
 
     @property
     def input_dim(self) -> int:
@@ -225,7 +248,9 @@ class Method:
 class PointCloudMethod(Method):
     """A method of the ``reconstruct`` task: a mesh from a raw point cloud, no normals given.
 
-    Subclasses implement :meth:`reconstruct`; classic (non-learned) methods need nothing else. The
+    Subclasses implement :meth:`reconstruct`; classic (non-learned) methods need nothing else. A
+    method that optimises something per shape under a budget of its own sets ``budget_family``; the
+    job then passes its record as ``reconstruct(..., budget=record)``. The
     job samples the point cloud (``benchmark.surface.sample_surface`` with the job's sampler
     stream, the same cloud for every method of a (shape, seed)) and times ``reconstruct`` as the
     ``reconstruct`` stage (sub-steps via :func:`benchmark.timing.stage`).
@@ -233,6 +258,7 @@ class PointCloudMethod(Method):
 
     task: ClassVar[str] = "reconstruct"
     input_kind: ClassVar[str] = "points"
+    budget_family: ClassVar[str | None] = None
 
     def checked_points(self, points) -> np.ndarray:
         """``points`` as a float64 (P, 3) array with P >= 1; otherwise a ValueError naming the method."""
@@ -263,7 +289,8 @@ class LearnedPointCloudMethod(PointCloudMethod):
     ``network_kind``), the loss from :meth:`loss` (``prediction`` (B, output_dim) logits/values,
     ``targets`` torch tensors).
 
-    A method with its own architecture and training implements :meth:`train_network`,
+    Every learned method names its budget family (``budget_family``), whose records carry the
+    training set's fields. A method with its own architecture and training implements :meth:`train_network`,
     :meth:`network_to_bytes` and :meth:`network_from_bytes` (or subclasses
     :class:`methods.pointcloud.own_network.OwnNetworkMethod`, which stores its config with the weights), and
     names the modules of its training code in ``training_modules`` (part of the weights' cache key,
@@ -277,10 +304,10 @@ class LearnedPointCloudMethod(PointCloudMethod):
 
     def train_network(self, shapes: list, budget, seed: int, device=None, progress=None):
         """Train this method's network on ``shapes`` (:class:`datasets.Shape`) under ``budget`` (a
-        :class:`methods.pointcloud.knn.network.KNNBudget`: the training set's size and pools, the steps) from
-        ``seed``; ``progress(step=..., loss=...)`` now and then, with ``total=`` the step count when the
-        method's schedule has its own (not ``budget.steps``). Returns an object with ``model``
-        (eval mode), ``steps``, ``seconds`` (the step loop), ``samples_per_s`` and ``final_loss``."""
+        record of its budget family, with the :class:`methods.pointcloud.training_set.TrainingSet`
+        fields) from ``seed``; ``progress(step=..., loss=..., total=...)`` now and then (``total``:
+        the step count). Returns an object with ``model`` (eval mode), ``steps``, ``seconds`` (the
+        step loop), ``samples_per_s`` and ``final_loss``."""
         raise NotImplementedError
 
     def network_to_bytes(self, trained, budget) -> bytes:
@@ -300,6 +327,14 @@ class LearnedPointCloudMethod(PointCloudMethod):
     def reconstruct(self, points: np.ndarray, N: int, device=None, seed: int = 0, model=None) -> Extraction:
         """A mesh from ``points`` with the trained ``model`` (eval mode; required)."""
         raise NotImplementedError
+
+    def network_on_device(self, model, device=None):
+        """(``model`` in eval mode on the chosen device, that device); a ValueError naming the method
+        when no trained model is given."""
+        if model is None:
+            raise ValueError(f"{self.name} reconstructs with a trained network: none given")
+        device = get_device(device)
+        return model.to(device).eval(), device
 
 
 def _import_method_modules() -> None:
@@ -321,6 +356,13 @@ def register_method(cls: type[Method]) -> type[Method]:
     if not cls.name:
         raise ValueError(f"{cls.__name__} must set a non-empty 'name'")
     return METHODS.register(cls.name, cls)
+
+
+def budget_family(name: str) -> BudgetFamily:
+    """The budget family ``name``, once every method module is imported (each family is registered
+    by the module that defines its record type)."""
+    METHODS.names()
+    return BUDGET_FAMILIES.get(name)
 
 
 def available_methods(task: str | None = "encode") -> list[str]:

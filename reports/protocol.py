@@ -6,7 +6,7 @@ The run layer passes ``context``, a flat dict with the keys of :data:`CONTEXT_KE
 dataset     dataset name (str)
 task        'encode'
 mode        'neural' or 'oracle'
-budget      budget name (str), None in oracle mode; budget_values its values (dict) or None
+budget      budget name (str), None in oracle mode; budget_values {budget family: its values} or None
 grid        N, the extraction grid has N³ points on [-1, 1]³
 seeds       list of int
 methods     method names in display order; shapes: shape names in dataset order
@@ -89,9 +89,12 @@ def protocol_items(context: dict) -> list[tuple[str, str]]:
     items = [("dataset", f"{context['dataset']} ({len(context['shapes'])} shapes)"),
              ("task", str(context["task"])), ("mode", str(context["mode"]))]
     if context["budget"] is not None:
-        values = context["budget_values"] or {}
-        items.append(("budget", str(context["budget"]) + (
-            " (" + ", ".join(f"{k} {v}" for k, v in values.items()) + ")" if values else "")))
+        families = context["budget_values"] or {}
+        if not all(isinstance(v, dict) for v in families.values()):  # a run recorded before budget families
+            families = {"": families}
+        described = "; ".join((f"{family}: " if len(families) > 1 else "") + ", ".join(f"{k} {v}" for k, v in values.items())
+                              for family, values in families.items())
+        items.append(("budget", str(context["budget"]) + (f" ({described})" if described else "")))
     grid = int(context["grid"])
     items += [("grid", f"{grid}³ points on [-1, 1]³"), ("seeds", ", ".join(str(s) for s in context["seeds"]))]
     if sweep_spec(context):

@@ -147,10 +147,9 @@ def _code_without_docstrings(source: str, filename: str) -> bytes:
     return ast.dump(tree, annotate_fields=False, include_attributes=False).encode()
 
 
-@lru_cache(maxsize=None)
-def code_digest(*modules: str) -> str:
-    """SHA-256 (16 hex) over the code of ``modules`` and of the project modules they import,
-    transitively (module docstring): comments and docstrings do not count."""
+def code_modules(*modules: str) -> dict[str, Path]:
+    """``modules`` and every project module they import, transitively (their packages included):
+    {module name: source file}, sorted by name."""
     importlib.invalidate_caches()
     seen: dict[str, Path] = {}
     todo = list(modules)
@@ -164,9 +163,16 @@ def code_digest(*modules: str) -> str:
         parent = name.rpartition(".")[0]
         if parent and parent not in seen:
             todo.append(parent)
+    return dict(sorted(seen.items()))
+
+
+@lru_cache(maxsize=None)
+def code_digest(*modules: str) -> str:
+    """SHA-256 (16 hex) over the code of :func:`code_modules` of ``modules`` (module docstring):
+    comments and docstrings do not count."""
     h = hashlib.sha256()
-    for name in sorted(seen):
-        h.update(name.encode() + b"\0" + _computing_source(seen[name]) + b"\0")
+    for name, path in code_modules(*modules).items():
+        h.update(name.encode() + b"\0" + _computing_source(path) + b"\0")
     return h.hexdigest()[:16]
 
 
@@ -181,12 +187,17 @@ def task_code_digest(spec) -> str:
     return code_digest(*modules)
 
 
-def fit_code_digest(method) -> str:
-    """Code a fit depends on: the module of the method the fit belongs to (``method.fit_name``), the
-    fitting loop, the sampler, the exact fields."""
+def fit_code_modules(method) -> tuple[str, ...]:
+    """The modules whose code a fit depends on (with what they import): the module of the method
+    the fit belongs to (``method.fit_name``), the fitting loop, the sampler, the exact fields."""
     from methods.base import METHODS
 
-    return code_digest(METHODS.get(method.fit_name).__module__, "methods.core.fitting", "benchmark.sampler", "benchmark.fields")
+    return (METHODS.get(method.fit_name).__module__, "methods.core.fitting", "benchmark.sampler", "benchmark.fields")
+
+
+def fit_code_digest(method) -> str:
+    """The code digest of a fit (:func:`fit_code_modules`)."""
+    return code_digest(*fit_code_modules(method))
 
 
 def extraction_code_digest(method) -> str:

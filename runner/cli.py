@@ -205,21 +205,21 @@ def typed_settings(config: RunConfig) -> RunConfig:
     from runner.sweep import budget_parameters, typed_sweep
     from methods.base import METHODS, available_methods
 
-    BUDGET_PARAMS = budget_parameters(config.task)
-    budget_params = {}
-    for key, value in config.budget_params.items():
-        if key not in BUDGET_PARAMS:
-            raise ConfigError(f"--budget-param: the budget has no setting '{key}' a run may change; known: "
-                              f"{', '.join(sorted(BUDGET_PARAMS))}")
-        try:
-            budget_params[key] = BUDGET_PARAMS[key].parse(value, f"--budget-param {key}")
-        except ValueError as exc:
-            raise ConfigError(str(exc)) from None
     methods = config.methods or tuple(available_methods(config.task))
     for m in methods:
         if m not in METHODS:
             raise ConfigError(f"--methods: {METHODS.unknown(m)}")
-    sweep = typed_sweep(config.sweep, methods, config.mode, config.task)
+    readable = budget_parameters(methods)
+    budget_params = {}
+    for key, value in config.budget_params.items():
+        if key not in readable:
+            raise ConfigError(f"--budget-param {key}: no method of this run ({', '.join(methods)}) reads a budget "
+                              f"setting '{key}'; the settings they read: {', '.join(sorted(readable)) or 'none'}")
+        try:
+            budget_params[key] = readable[key].parse(value, f"--budget-param {key}")
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+    sweep = typed_sweep(config.sweep, methods, config.mode)
     return dataclasses.replace(config, budget_params=budget_params, sweep=sweep)
 
 
@@ -327,7 +327,9 @@ def train_main(argv: Sequence[str]) -> int:
 
         pin_threads(int(plan.config.threads))
     for name in learned:
-        bar = tqdm(total=plan.budget.steps, desc=f"train {name} ({plan.budget.name})", disable=plan.config.quiet)
+        method = get_method(name, **plan.method_params[name])
+        budget = plan.budgets[method.budget_family]
+        bar = tqdm(total=None, desc=f"train {name} ({budget.name})", disable=plan.config.quiet)
 
         def progress(step, loss, total=None, bar=bar):
             if total is not None and bar.total != total:
@@ -335,8 +337,7 @@ def train_main(argv: Sequence[str]) -> int:
             bar.update(step - bar.n)
             bar.set_postfix(loss=f"{loss:.4g}")
 
-        _, facts = trained_network(get_method(name, **plan.method_params[name]), plan.budget, plan.train_dirs,
-                                   cache_root_of(plan.config), progress=progress)
+        _, facts = trained_network(method, budget, plan.train_dirs, cache_root_of(plan.config), progress=progress)
         bar.close()
         how = (f"trained in {facts['train_loop_s']:.0f} s, final loss {facts['train_final_loss']:.4g}"
                if facts["trained"] else "found in the cache")

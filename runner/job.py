@@ -185,8 +185,6 @@ _NOT_CACHED = ("load_s", "metrics_s")
 
 
 def _job_body(spec: JobSpec, shape, device, timer: StageTimer, result: TaskResult, report: _Progress) -> None:
-    import dataclasses
-
     from benchmark import metrics
     from runner.cache import RunCaches, extraction_code_digest, fit_code_digest
     from methods.base import get_method
@@ -196,10 +194,11 @@ def _job_body(spec: JobSpec, shape, device, timer: StageTimer, result: TaskResul
     caches = RunCaches(spec.cache_dir, stats)
     weights_key = None
     if spec.mode == "neural":
-        from methods.core.fitting import get_budget
+        from methods.core.budgets import budget_values
 
         weights_key = digest({"shape": result.shape_hash, "method": method.fit_name, "input": method.input_kind,
-                              "output_dim": method.output_dim, "budget": dataclasses.asdict(get_budget(spec.budget, spec.budget_params)),
+                              "output_dim": method.output_dim,
+                              "budget": budget_values(method.budget(spec.budget, spec.budget_params)),
                               "seed": spec.seed, "code": fit_code_digest(method), "fit_params": method.fit_params()})
     mesh_key = digest({"shape": result.shape_hash, "method": spec.method, "params": method.params, "mode": spec.mode,
                        "grid": spec.grid, "weights": weights_key, "code": extraction_code_digest(method),
@@ -298,7 +297,7 @@ def _fit(spec, method, shape, fields, device, caches, weights_key, result: TaskR
     from benchmark.seeding import job_streams
     from methods.core import fitting
 
-    budget = fitting.get_budget(spec.budget, spec.budget_params)
+    budget = method.budget(spec.budget, spec.budget_params)
     streams = job_streams(shape.content_hash, spec.seed)
     report("sampling")
     with stage("sample"):
@@ -382,9 +381,11 @@ def _reconstruct_body(spec: JobSpec, shape, device, timer: StageTimer, result: T
 
     method = get_method(spec.method, **spec.params)
     network = {}
-    if spec.budget is not None:  # a learned method: its network, trained once across shapes (cached)
+    budget = method.budget(spec.budget, spec.budget_params) if spec.budget is not None else None
+    if budget is not None and not method.learned:  # a per-shape optimisation under its own budget
+        network["budget"] = budget
+    if budget is not None and method.learned:  # its network, trained once across shapes (cached)
         from runner.training import trained_network
-        from methods.pointcloud.knn.training import get_knn_budget
 
         report("training")
         stats = CacheStats()
@@ -393,9 +394,8 @@ def _reconstruct_body(spec: JobSpec, shape, device, timer: StageTimer, result: T
             report("training", step=step, loss=loss)
 
         with stage("network"):
-            network["model"], facts = trained_network(method, get_knn_budget(spec.budget, spec.budget_params),
-                                                      spec.train_dirs, spec.cache_dir, device, stats=stats,
-                                                      progress=training_progress)
+            network["model"], facts = trained_network(method, budget, spec.train_dirs, spec.cache_dir, device,
+                                                      stats=stats, progress=training_progress)
         result.info.update(facts)
         result.cache, result.cache_rejected = list(stats.hits), list(stats.rejected)
     report("sampling")

@@ -42,7 +42,9 @@ class Plan:
     """A resolved run: every name looked up, every parameter typed, the shapes listed.
 
     methods : names in display order. method_params : full, typed parameters per method.
-    budget : the fitting budget (None in oracle mode). preset : the metric preset.
+    budgets : the budget record of each budget family whose methods fit or train in this run
+        (``{family: record}``; empty in oracle mode and for classic reconstruction). preset : the
+        metric preset.
     eval_points : effective metric samples per mesh. dataset_options : how workers build the dataset.
     shapes : shape names in dataset order.
     """
@@ -50,7 +52,7 @@ class Plan:
     config: RunConfig
     methods: tuple[str, ...]
     method_params: dict[str, dict[str, Any]]
-    budget: Any
+    budgets: dict[str, Any]
     preset: Any
     eval_points: int
     dataset_options: dict[str, Any]
@@ -61,10 +63,12 @@ class Plan:
 
     def record(self) -> dict[str, Any]:
         """The resolved facts for config.json (JSON-ready)."""
+        from methods.core.budgets import budget_values
+
         return {"methods": list(self.methods), "method_params": self.method_params,
                 "sweep": {k: list(v) for k, v in self.sweep.items()}, "sweep_keys": list(self.sweep),
                 "train_dirs": list(self.train_dirs),
-                "budget": dataclasses.asdict(self.budget) if self.budget is not None else None,
+                "budget": {f: budget_values(b) for f, b in self.budgets.items()} or None,
                 "metric_preset": self.preset.to_dict(), "eval_points": self.eval_points,
                 "protocol": self.preset.describe(self.eval_points),
                 "dataset_options": self.dataset_options, "shapes": list(self.shapes)}
@@ -100,7 +104,7 @@ def resolve(config: RunConfig) -> Plan:
             if m not in methods:
                 raise ConfigError(f"--method-param names method '{m}', which is not in --methods ({', '.join(methods)})")
         params = {m: METHODS.get(m)(**config.method_params.get(m, {})).params for m in methods}
-        budget = _budget(config, methods)
+        budgets = _budgets(config, methods)
         if config.metric_preset not in PRESETS:
             raise ConfigError(f"unknown metric preset '{config.metric_preset}'; known metric presets: "
                               f"{', '.join(PRESETS)}")
@@ -134,8 +138,8 @@ def resolve(config: RunConfig) -> Plan:
             raise ConfigError(f"--pc-points does not apply to dataset '{config.dataset}': its files give the points")
     n = config.eval_points if config.eval_points is not None else preset.n_points
     sweep, variants = _variants(config, methods)
-    train_dirs = _train_dirs(config, methods) if budget is not None and config.task == "reconstruct" else ()
-    return Plan(config, methods, params, budget, preset, int(n), options, tuple(shapes), sweep, variants, train_dirs)
+    train_dirs = _train_dirs(config, methods) if budgets and config.task == "reconstruct" else ()
+    return Plan(config, methods, params, budgets, preset, int(n), options, tuple(shapes), sweep, variants, train_dirs)
 
 
 def _train_dirs(config: RunConfig, methods: tuple[str, ...]) -> tuple[str, ...]:
@@ -157,20 +161,27 @@ def _train_dirs(config: RunConfig, methods: tuple[str, ...]) -> tuple[str, ...]:
     return dirs
 
 
-def _budget(config: RunConfig, methods: tuple[str, ...]):
-    """The plan's budget: the per-shape fitting budget (encode, neural mode), the training budget of
-    the learned methods (reconstruct, :data:`methods.pointcloud.knn.network.KNN_BUDGETS`), else None."""
+def _budgets(config: RunConfig, methods: tuple[str, ...]) -> dict[str, Any]:
+    """The budget record named ``config.budget`` of each budget family whose methods fit or train in
+    this run, each with the overrides its family reads: ``{family: record}`` (empty in oracle mode
+    and when no method trains). A family without that name refuses it, naming its budgets."""
     from methods.base import METHODS
-    from methods.core.fitting import get_budget
+    from runner.sweep import trains
 
-    if config.task == "reconstruct":
-        from methods.pointcloud.knn.training import get_knn_budget
-
-        learned = any(METHODS.get(m).learned for m in methods)
-        if not learned and config.budget_params:
-            raise ConfigError(f"--budget-param: none of {', '.join(methods)} trains a network")
-        return get_knn_budget(config.budget, config.budget_params) if learned else None
-    return get_budget(config.budget, config.budget_params) if config.mode == "neural" else None
+    training = [m for m in methods if trains(m)] if config.budget is not None else []
+    if config.budget_params and not training:
+        raise ConfigError(f"--budget-param: none of {', '.join(methods)} fits or trains under a budget")
+    readable = set().union(*(METHODS.get(m).budget_fields() for m in training))
+    for key in config.budget_params:
+        if key not in readable:
+            raise ConfigError(f"--budget-param {key}: no method of this run ({', '.join(methods)}) reads a budget "
+                              f"setting '{key}'; the settings they read: {', '.join(sorted(readable))}")
+    budgets: dict[str, Any] = {}
+    for m in training:
+        cls = METHODS.get(m)
+        if cls.budget_family not in budgets:
+            budgets[cls.budget_family] = cls.budget(config.budget, config.budget_params)
+    return budgets
 
 
 def _variants(config: RunConfig, methods: tuple[str, ...]) -> tuple[dict[str, tuple], tuple[Variant, ...]]:
@@ -181,8 +192,8 @@ def _variants(config: RunConfig, methods: tuple[str, ...]) -> tuple[dict[str, tu
     from methods.base import METHODS
     from benchmark.params import ParamError
 
-    typed = sweeps.typed_sweep(config.sweep, methods, config.mode, config.task)
-    keys = {k: sweeps.sweep_key(k, methods, config.mode, config.task) for k in typed}
+    typed = sweeps.typed_sweep(config.sweep, methods, config.mode)
+    keys = {k: sweeps.sweep_key(k, methods, config.mode) for k in typed}
     for name, key in keys.items():
         given = config.method_params.get(key.method, {}) if key.kind == "method" else (
             config.budget_params if key.kind == "budget" else {})
@@ -208,7 +219,7 @@ def _variants(config: RunConfig, methods: tuple[str, ...]) -> tuple[dict[str, tu
             cfg = dataclasses.replace(config, **{"sweep": {}, "mode": mode, "method_params": method_params,
                                                  "budget_params": budget_params, **run})
             try:
-                _budget(cfg, methods)
+                _budgets(cfg, methods)
                 params = {m: METHODS.get(m)(**cfg.method_params.get(m, {})).params for m in methods}
             except (ParamError, ValueError) as exc:
                 where = f"--sweep point {sweeps.variant_tag(values)}: " if values else ""

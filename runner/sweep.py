@@ -4,17 +4,18 @@ A sweep key names one setting of a job:
 
 * a run setting: ``grid``, ``eval_points``, ``budget`` (a budget name), ``seed``, and for the
   reconstruct task ``pc_points`` and ``pc_noise``;
-* a budget value: ``budget.NAME`` for NAME in :func:`budget_parameters`
-  (``budget.num_samples``, ``budget.iterations``, ...);
+* a budget value: ``budget.NAME`` for NAME a field of the budget family of some method of the run
+  (:func:`budget_parameters`: ``budget.num_samples``, ``budget.iterations``, ``budget.steps``, ...);
 * a method parameter: ``METHOD.NAME`` (``sals.o_threshold``, ``sals.normals``, ``sals.faces``).
 
 Values are typed and range-checked by the key's :class:`benchmark.params.Param`, exactly as
 ``--method-param`` and ``--budget-param`` values are. Several keys give their cross product, in the
 order given (:func:`variants`). A key applies to a job or not (:meth:`SweepKey.applies_to`): a
 method parameter only to that method's jobs (and, if only the neural query reads it, e.g.
-``sals.o_threshold``, only to its neural jobs), a budget key only to jobs that train (encoding
-methods in neural mode, the learned reconstruction methods; their budget values differ by task:
-:func:`budget_parameters`). A job that a
+``sals.o_threshold``, only to its neural jobs), a budget name only to jobs that fit or train
+(encoding methods in neural mode, the learned reconstruction methods, CAP-UDF's optimisation), and
+a budget value only to the jobs of methods whose budget family has that field
+(:meth:`methods.base.Method.budget_fields`). A job that a
 key does not apply to is the same job for every value of the key and runs once (its row has no value
 in that key's column; the sweep reports show it as a constant reference).
 """
@@ -44,48 +45,52 @@ class SweepKey:
     method: str | None = None
 
     def applies_to(self, method: str, mode: str) -> bool:
-        """Whether a job of ``method`` in ``mode`` depends on this key."""
+        """Whether a job of ``method`` in ``mode`` depends on this key (a budget value: only the
+        methods whose budget family has that field)."""
+        from methods.base import METHODS
+
         if self.kind == "method":  # a parameter of the neural query only: the exact field ignores it
             return method == self.method and (mode == "neural" or not self.param.neural_only)
-        if self.kind == "budget" or self.target == "budget":
+        if self.kind == "budget":
+            return mode == "neural" and self.target in METHODS.get(method).budget_fields()
+        if self.target == "budget":
             return mode == "neural" and trains(method)
         return True
 
 
 def trains(method: str) -> bool:
-    """Whether a job of ``method`` trains a network (every encoding method in neural mode; the
-    learned reconstruction methods), i.e. depends on the budget."""
+    """Whether a job of ``method`` reads a budget (it has a budget family: every encoding method in
+    neural mode; the learned reconstruction methods and those that optimise per shape)."""
     from methods.base import METHODS
 
-    cls = METHODS.get(method)
-    return cls.task == "encode" or cls.learned
+    return METHODS.get(method).budget_family is not None
 
 
-def budget_parameters(task: str) -> dict[str, Param]:
-    """The budget values a run of ``task`` may change: the per-shape fitting budget's (encode) or the
-    K-NN training budget's (reconstruct)."""
-    if task == "reconstruct":
-        from methods.pointcloud.knn.network import KNN_BUDGET_PARAMS
+def budget_parameters(methods: Sequence[str]) -> dict[str, Param]:
+    """The budget fields a run of ``methods`` may change: those of the methods' budget families (a
+    field of several families typed by the first; each family parses it again by its own)."""
+    from methods.base import METHODS, budget_family
 
-        return KNN_BUDGET_PARAMS
-    from methods.core.fitting import BUDGET_PARAMS
+    params: dict[str, Param] = {}
+    for family in dict.fromkeys(METHODS.get(m).budget_family for m in methods if trains(m)):
+        for key, param in budget_family(family).params.items():
+            params.setdefault(key, param)
+    return params
 
-    return BUDGET_PARAMS
 
-
-def known_keys(methods: Sequence[str], task: str = "encode") -> list[str]:
+def known_keys(methods: Sequence[str]) -> list[str]:
     """Every sweep key for these methods (for error messages and ``--help``)."""
     from methods.base import METHODS
 
-    keys = list(RUN_KEYS) + [f"budget.{k}" for k in sorted(budget_parameters(task))]
+    keys = list(RUN_KEYS) + [f"budget.{k}" for k in sorted(budget_parameters(methods))]
     return keys + [f"{m}.{p}" for m in methods for p in sorted(METHODS.get(m).parameters)]
 
 
-def sweep_key(name: str, methods: Sequence[str], mode: str, task: str = "encode") -> SweepKey:
+def sweep_key(name: str, methods: Sequence[str], mode: str) -> SweepKey:
     """The key ``name`` for a run of ``methods`` in ``mode``; ConfigError listing the known keys."""
     from methods.base import METHODS
 
-    budget_params = budget_parameters(task)
+    budget_params = budget_parameters(methods)
     head, dot, tail = name.partition(".")
     key = None
     if not dot and name in RUN_KEYS:
@@ -95,7 +100,7 @@ def sweep_key(name: str, methods: Sequence[str], mode: str, task: str = "encode"
     elif dot and head in methods and tail in METHODS.get(head).parameters:
         key = SweepKey(name, "method", tail, METHODS.get(head).parameters[tail], method=head)
     if key is None:
-        raise ConfigError(f"--sweep: unknown key '{name}'; known keys: {', '.join(known_keys(methods, task))}")
+        raise ConfigError(f"--sweep: unknown key '{name}'; known keys: {', '.join(known_keys(methods))}")
     if mode == "oracle" and not key.applies_to(key.method or "", "oracle"):
         raise ConfigError(f"--sweep {name}: oracle mode fits nothing, so it has no budget to sweep")
     return key
@@ -116,16 +121,15 @@ def split_items(items: Iterable[str]) -> dict[str, list[str]]:
     return out
 
 
-def typed_sweep(sweep: Mapping[str, Sequence[Any]], methods: Sequence[str], mode: str,
-                task: str = "encode") -> dict[str, tuple]:
-    """Each key's values typed and checked (ConfigError naming the key or value)."""
-    from methods.core.fitting import BUDGETS
-    from methods.pointcloud.knn.network import KNN_BUDGETS
+def typed_sweep(sweep: Mapping[str, Sequence[Any]], methods: Sequence[str], mode: str) -> dict[str, tuple]:
+    """Each key's values typed and checked (ConfigError naming the key or value; a budget name that
+    the budget family of a method of the run lacks names that family's budgets)."""
+    from methods.base import METHODS, budget_family
 
-    registry = KNN_BUDGETS if task == "reconstruct" else BUDGETS
+    families = [budget_family(f) for f in dict.fromkeys(METHODS.get(m).budget_family for m in methods if trains(m))]
     typed: dict[str, tuple] = {}
     for name, values in sweep.items():
-        key = sweep_key(name, methods, mode, task)
+        key = sweep_key(name, methods, mode)
         try:
             parsed = tuple(key.param.parse(v, f"--sweep {name}") for v in values)
         except ParamError as exc:
@@ -136,8 +140,9 @@ def typed_sweep(sweep: Mapping[str, Sequence[Any]], methods: Sequence[str], mode
             raise ConfigError(f"--sweep {name}: values must not repeat, got {list(values)}")
         if name == "budget":
             for b in parsed:
-                if b not in registry:
-                    raise ConfigError(f"--sweep budget: {registry.unknown(b)}")
+                for family in families:
+                    if b not in family.budgets:
+                        raise ConfigError(f"--sweep budget: {family.budgets.unknown(b)}")
         typed[name] = parsed
     return typed
 

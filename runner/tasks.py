@@ -174,9 +174,10 @@ def build_tasks(plan) -> tuple[list[FloorSpec], list[JobSpec]]:
                 for seed in vc.seeds:
                     trains = method_trains(m)
                     extra = {**reconstruct, "train_dirs": plan.train_dirs} if reconstruct and trains else reconstruct
+                    reads = METHODS.get(m).budget_fields()
                     job = JobSpec(shape=s, seed=seed, method=m, params=v.method_params[m], mode=vc.mode,
                                   budget=vc.budget if trains else None,
-                                  budget_params=dict(vc.budget_params) if trains else {}, grid=vc.grid,
+                                  budget_params={k: x for k, x in vc.budget_params.items() if k in reads}, grid=vc.grid,
                                   eval_points=vc.eval_points, checkpoints=vc.checkpoints, cache_dir=cache_dir,
                                   decompose=vc.decompose and vc.mode == "neural" and bool(METHODS.get(m).components),
                                   sweep=values, variant=tag, task=vc.task, **extra, **common)

@@ -1,11 +1,12 @@
 """The trained networks of the reconstruct task's learned methods: trained once per (training set,
 method, budget, code), cached, shared by every job and run that needs them.
 
-Training set: :func:`methods.pointcloud.knn.training.training_shapes` with the budget's ``training_shapes``
-built-in parts (generator seed :data:`methods.pointcloud.knn.training.DEFAULT_TRAINING_SEED`, disjoint from every
+Training set: :func:`methods.pointcloud.training_set.training_shapes` with the budget's ``training_shapes``
+built-in parts (generator seed :data:`methods.pointcloud.training_set.DEFAULT_TRAINING_SEED`, disjoint from every
 built-in test shape by construction and by hash) plus every mesh of the run's ``train_dirs`` (by
 default the Thingi10K folder of ``../shared/data`` where it exists). Cache key: the training set's
-digest (content hashes and names), the method, every budget value, the training seed and the code
+digest (content hashes and names), the method, every value of its budget record (the fields its
+family reads, not the budget's name), the training seed and the code
 digest of the method's module and the training loop (:func:`runner.cache.code_digest`).
 Entries: ``<cache root>/knn_weights/<method>_<key>.pt``, written with a checksum; a job that needs a
 network another job is training waits on the entry's lock (``locks/``) and then loads it.
@@ -13,7 +14,6 @@ network another job is training waits on the entry's lock (``locks/``) and then 
 
 from __future__ import annotations
 
-import dataclasses
 from functools import lru_cache
 from pathlib import Path
 from typing import Callable
@@ -33,20 +33,27 @@ def default_train_dirs() -> tuple[str, ...]:
 
 @lru_cache(maxsize=4)
 def _shapes(count: int, dirs: tuple[str, ...]):
-    from methods.pointcloud.knn.training import DEFAULT_TRAINING_SEED, training_shapes
+    from methods.pointcloud.training_set import DEFAULT_TRAINING_SEED, training_shapes
 
     return tuple(training_shapes(count=count, seed=DEFAULT_TRAINING_SEED, extra_dirs=[Path(d) for d in dirs]))
+
+
+def network_code_modules(method) -> tuple[str, ...]:
+    """The modules whose code a learned method's network depends on (with what they import): the
+    method's module and its ``training_modules``."""
+    return (type(method).__module__, *method.training_modules)
 
 
 def network_key(method, budget, train_dirs: tuple[str, ...]) -> tuple[str, tuple]:
     """(cache key, training shapes) of the network ``method`` trains at ``budget``."""
     from runner.cache import code_digest
-    from methods.pointcloud.knn.training import DEFAULT_TRAINING_SEED, training_set_digest
+    from methods.core.budgets import budget_values
+    from methods.pointcloud.training_set import DEFAULT_TRAINING_SEED, training_set_digest
 
     shapes = _shapes(budget.training_shapes, tuple(train_dirs))
     key = digest({"training_set": training_set_digest(shapes), "method": method.name,
-                  "budget": dataclasses.asdict(budget), "seed": DEFAULT_TRAINING_SEED,
-                  "code": code_digest(type(method).__module__, *method.training_modules)})
+                  "budget": budget_values(budget), "seed": DEFAULT_TRAINING_SEED,
+                  "code": code_digest(*network_code_modules(method))})
     return key, shapes
 
 
@@ -55,7 +62,7 @@ def trained_network(method, budget, train_dirs: tuple[str, ...], cache_root: str
     """(model in eval mode, facts) of ``method`` at ``budget`` (its own :meth:`train_network`): from the cache, or
     trained now (and cached). Facts: ``network_key``, ``trained`` (1 if trained here), and after a
     training ``train_steps``, ``train_loop_s``, ``train_samples_per_s``, ``train_final_loss``."""
-    from methods.pointcloud.knn.training import DEFAULT_TRAINING_SEED
+    from methods.pointcloud.training_set import DEFAULT_TRAINING_SEED
 
     key, shapes = network_key(method, budget, train_dirs)
     root = Path(cache_root)

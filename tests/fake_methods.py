@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from methods.base import METHODS, Extraction, Method
+from methods.base import METHODS, Method
 from benchmark.params import Param
 
 PLUGIN = "tests.fake_methods:register_fakes"
@@ -46,10 +46,8 @@ class _FakeGridMethod(Method):
         from methods.extractors.marching_cubes import marching_cubes_grid
 
         if self.kind == "sdf":
-            V, F = marching_cubes_grid(grid_field, self.params["level"], inside="low")
-        else:
-            V, F = marching_cubes_grid(np.asarray(grid_field, dtype=np.float32), 0.5, inside="high")
-        return Extraction(V, F)
+            return marching_cubes_grid(grid_field, self.params["level"], inside="low")
+        return marching_cubes_grid(np.asarray(grid_field, dtype=np.float32), 0.5, inside="high")
 
 
 class FakeSDF(_FakeGridMethod):

@@ -1,4 +1,4 @@
-"""CAP-UDF (methods/pointcloud/cap_udf/method.py, cap_udf_network.py, cap_udf_extraction.py): the network's
+"""CAP-UDF (methods/pointcloud/cap_udf/: method.py, network.py, extraction.py): the network's
 geometric initialisation, the schedule, the extraction on a hand-made plane UDF, and the whole
 per-shape optimisation on a sphere cloud at the ``tiny`` budget."""
 
@@ -10,12 +10,14 @@ import torch
 
 from benchmark.grid import grid_points, spacing
 from methods.base import get_method
-from methods.pointcloud.cap_udf.method import CAP_UDF_CONFIGS, authors_frame, field_consistency_loss, learning_rate, voxel_downsample
-from methods.pointcloud.cap_udf.extraction import cap_udf_extract, gradient_signs, remove_far_faces
+from methods.pointcloud.cap_udf.method import CAP_UDF_FAMILY, authors_frame, field_consistency_loss, learning_rate, voxel_downsample
+from methods.pointcloud.cap_udf.extraction import gradient_sign_marching_cubes, gradient_signs, remove_far_faces
 from methods.pointcloud.cap_udf.network import CAPUDFNetwork, pull
 
 R = 0.5
 
+
+TINY = CAP_UDF_FAMILY.budgets.get("tiny")
 
 def sphere_points(n: int, seed: int = 0) -> np.ndarray:
     x = np.random.default_rng(seed).normal(size=(n, 3))
@@ -40,7 +42,7 @@ def test_geometric_init_starts_near_the_sphere_of_radius_one_half():
 
 
 def test_learning_rate_warms_up_then_decays_to_zero():
-    c = CAP_UDF_CONFIGS["paper"]
+    c = CAP_UDF_FAMILY.budgets.get("paper")
     assert learning_rate(0, c) == 0.0 and learning_rate(500, c) == pytest.approx(5e-4)
     assert learning_rate(1000, c) == pytest.approx(1e-3) and learning_rate(c.steps, c) == pytest.approx(0.0)
     assert learning_rate(30_500, c) == pytest.approx(5e-4)  # half way through the cosine
@@ -78,11 +80,12 @@ def test_extraction_of_a_plane_udf_is_the_plane():
     udf = np.abs(x[..., 2] - z0)
     grad = np.zeros((N, N, N, 3))
     grad[..., 2] = np.sign(x[..., 2] - z0)
-    V, F = cap_udf_extract(udf, grad, 1.16 * spacing(N))
+    mesh = gradient_sign_marching_cubes(udf, grad, 1.16 * spacing(N))
+    V, F = mesh.vertices, mesh.faces
     assert np.allclose(V[:, 2], z0)  # linear interpolation of |z - z0| with the gradient signs is exact
     assert len(F) == 2 * (N - 1) ** 2 and boundary_edge_count(F) == 4 * (N - 1)  # one square sheet
     # the authors skip cells whose nearest corner is farther than the threshold: at 0.3 h all of them
-    assert len(cap_udf_extract(udf, grad, 0.3 * spacing(N))[1]) == 0
+    assert len(gradient_sign_marching_cubes(udf, grad, 0.3 * spacing(N)).faces) == 0
 
 
 def test_remove_far_faces_by_hand():
@@ -94,7 +97,7 @@ def test_remove_far_faces_by_hand():
 
 def test_sphere_cloud_reconstructs_near_the_sphere_at_the_tiny_budget():
     N = 32
-    mesh = get_method("cap-udf", budget="tiny").reconstruct(sphere_points(3000), N=N, seed=0)
+    mesh = get_method("cap-udf").reconstruct(sphere_points(3000), N=N, seed=0, budget=TINY)
     radial = np.abs(np.linalg.norm(mesh.vertices, axis=1) - R)
     area = 0.5 * np.linalg.norm(np.cross(mesh.vertices[mesh.faces[:, 1]] - mesh.vertices[mesh.faces[:, 0]],
                                          mesh.vertices[mesh.faces[:, 2]] - mesh.vertices[mesh.faces[:, 0]]),
@@ -106,17 +109,17 @@ def test_sphere_cloud_reconstructs_near_the_sphere_at_the_tiny_budget():
 
 def test_same_seed_same_mesh():
     points = sphere_points(600, seed=1)
-    method = get_method("cap-udf", budget="tiny")
-    a = method.reconstruct(points, N=16, seed=3)
-    b = method.reconstruct(points, N=16, seed=3)
+    method = get_method("cap-udf")
+    a = method.reconstruct(points, N=16, seed=3, budget=TINY)
+    b = method.reconstruct(points, N=16, seed=3, budget=TINY)
     assert len(a.faces) > 0
     assert np.array_equal(a.vertices, b.vertices) and np.array_equal(a.faces, b.faces)
 
 
 def test_bad_clouds_are_refused_in_one_line():
-    method = get_method("cap-udf", budget="tiny")
+    method = get_method("cap-udf")
     with pytest.raises(ValueError, match="no points") as info:
-        method.reconstruct(np.zeros((0, 3)), N=16)
+        method.reconstruct(np.zeros((0, 3)), N=16, budget=TINY)
     assert "\n" not in str(info.value)
     with pytest.raises(ValueError, match="more than 50"):
-        method.reconstruct(sphere_points(20), N=16)
+        method.reconstruct(sphere_points(20), N=16, budget=TINY)

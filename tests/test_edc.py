@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 from benchmark.grid import EdgeField, edge_axes, edge_endpoints, num_edges, spacing
+from benchmark.timing import StageTimer, stage
 from methods.extractors.edc import (
     FAN_PLANE_TOLERANCE,
     _adaptive_split,
     edc_cell_vertices,
-    edc_extract,
-    edc_from_edge_field,
+    edge_dual_contouring,
     edge_points,
     intersected_edges,
     qef_solve,
@@ -47,6 +47,12 @@ def planes_edge_field(N, planes):
     hit = np.isfinite(best_t)
     s = np.where(hit, 1.0 - best_t, 0.0)
     return EdgeField(N, hit, s.astype(np.float32), normal.astype(np.float32)), s, normal
+
+
+def edc(*args, **options):
+    """(vertices, faces) of :func:`edge_dual_contouring`."""
+    mesh = edge_dual_contouring(*args, **options)
+    return mesh.vertices, mesh.faces
 
 
 def field_arrays(N, planes):
@@ -114,9 +120,12 @@ def test_plane_vertices_lie_on_the_plane():
     c = 0.123  # not on a grid plane
     ids, s, nrm = field_arrays(N, [((0, 0, 1), c, None)])
     assert len(ids) == N * N  # one z-edge per grid column
-    v, f, timings = edc_extract(N, ids, s, nrm)
+    with StageTimer().active() as timer, stage("extract"):
+        mesh = edge_dual_contouring(N, ids, s, nrm)
+    v, f = mesh.vertices, mesh.faces
     assert np.abs(v[:, 2] - c).max() < 1e-12
-    assert set(timings) == {"edge_points", "qef", "faces"}
+    assert set(timer.seconds) == {"extract_s", "extract_edge_points_s", "extract_qef_s", "extract_faces_s"}
+    assert mesh.info == {"intersected_edges": len(ids)} and v.dtype == np.float64 and f.dtype == np.int64
     # fan4: 4 triangles per interior z-edge, (N - 2)^2 of them
     assert len(f) == 4 * (N - 2) ** 2
     # an open sheet with a boundary and no non-manifold edge
@@ -127,7 +136,7 @@ def test_plane_vertices_lie_on_the_plane():
 def test_cube_corners_and_edges_are_sharp_with_normals():
     a = 0.4567
     ids, s, nrm = field_arrays(N, box_faces(a))
-    v, f, _ = edc_extract(N, ids, s, nrm)
+    v, f = edc(N, ids, s, nrm)
     corners = np.array(np.meshgrid([-a, a], [-a, a], [-a, a], indexing="ij")).reshape(3, -1).T
     dist = np.linalg.norm(v[None, :, :] - corners[:, None, :], axis=-1).min(axis=1)
     assert dist.max() < 1e-6  # all 8 corners reproduced
@@ -149,7 +158,7 @@ def test_cube_corners_and_edges_are_sharp_with_normals():
 def test_cube_without_normals_cuts_corners():
     a = 0.4567
     ids, s, _ = field_arrays(N, box_faces(a))
-    v, f, _ = edc_extract(N, ids, s, None)
+    v, f = edc(N, ids, s, None)
     corners = np.array(np.meshgrid([-a, a], [-a, a], [-a, a], indexing="ij")).reshape(3, -1).T
     dist = np.linalg.norm(v[None, :, :] - corners[:, None, :], axis=-1).min(axis=1)
     assert dist.min() > 0.05 * H  # mass points cannot reach the corners
@@ -159,7 +168,7 @@ def test_open_square_sheet_stays_open():
     b = 0.5321
     bounds = np.array([[-b, b], [-b, b], [0.0123, 0.0123]])
     ids, s, nrm = field_arrays(N, [((0, 0, 1), 0.0123, bounds)])
-    v, f, _ = edc_extract(N, ids, s, nrm)
+    v, f = edc(N, ids, s, nrm)
     counts = edge_use_counts(f)
     assert (counts == 1).sum() > 0  # a boundary loop
     assert counts.max() == 2  # manifold
@@ -171,7 +180,7 @@ def test_open_square_sheet_stays_open():
 def test_crossing_planes_give_non_manifold_crossing_line():
     c1, c2 = 0.0711, -0.1234
     ids, s, nrm = field_arrays(N, [((1, 0, 0), c1, None), ((0, 1, 0), c2, None)])
-    v, f, _ = edc_extract(N, ids, s, nrm)
+    v, f = edc(N, ids, s, nrm)
     counts = edge_use_counts(f)
     assert (counts > 2).sum() >= N - 3  # non-manifold edges all along the crossing line
     # vertices of the cells on the crossing line are exactly on it
@@ -184,8 +193,8 @@ def test_crossing_planes_give_non_manifold_crossing_line():
 def test_quad2_vs_fan4_counts():
     a = 0.4567
     ids, s, nrm = field_arrays(N, box_faces(a))
-    v4, f4, _ = edc_extract(N, ids, s, nrm, faces="fan4")
-    v2, f2, _ = edc_extract(N, ids, s, nrm, faces="quad2")
+    v4, f4 = edc(N, ids, s, nrm, faces="fan4")
+    v2, f2 = edc(N, ids, s, nrm, faces="quad2")
     # the cube lies inside the grid: every intersected edge is interior
     K = len(ids)
     assert len(f4) == 4 * K and len(f2) == 2 * K
@@ -197,21 +206,21 @@ def test_fan4_adaptive_is_fan4_on_a_plane():
     # one tilted plane: QEF vertices and edge points all lie on it, so every edge keeps its fan
     n = np.array([0.2, 0.3, 1.0]) / np.linalg.norm([0.2, 0.3, 1.0])
     ids, s, nrm = field_arrays(N, [(n, 0.1, None)])
-    v4, f4, _ = edc_extract(N, ids, s, nrm, faces="fan4")
-    va, fa, _ = edc_extract(N, ids, s, nrm, faces="fan4-adaptive")
+    v4, f4 = edc(N, ids, s, nrm, faces="fan4")
+    va, fa = edc(N, ids, s, nrm, faces="fan4-adaptive")
     assert np.array_equal(fa, f4) and np.array_equal(va, v4)
     assert np.abs(va @ n - 0.1).max() < 1e-12
     assert adjacent_abs_cos(va, fa).min() > 1 - 1e-9  # coplanar faces
 
 
 def test_fan4_adaptive_removes_thin_wall_creases():
-    # a tilted wall 0.5 h thick (like ABC 00014489's plate at 128^3): cells holding both sheets get
-    # a rank-1 QEF vertex between them, the edge point lies on a sheet, and the paper's fan folds
+    # a tilted wall 0.5 h thick: cells holding both sheets get a rank-1 QEF vertex between them,
+    # the edge point lies on a sheet, and the paper's fan folds
     n = np.array([0.8, 0.41, 0.43]) / np.linalg.norm([0.8, 0.41, 0.43])
     c0, c1 = 0.0123, 0.0123 + 0.5 * H
     ids, s, nrm = field_arrays(N, [(n, c0, None), (n, c1, None)])
-    v4, f4, _ = edc_extract(N, ids, s, nrm, faces="fan4")
-    va, fa, _ = edc_extract(N, ids, s, nrm, faces="fan4-adaptive")
+    v4, f4 = edc(N, ids, s, nrm, faces="fan4")
+    va, fa = edc(N, ids, s, nrm, faces="fan4-adaptive")
     assert (adjacent_abs_cos(v4, f4) < 0.2).sum() > 50  # fan4: creases > 78.5 degrees in a flat wall
     assert adjacent_abs_cos(va, fa).min() >= 0.2  # fan4-adaptive: none
     assert ((va @ n >= c0 - 1e-12) & (va @ n <= c1 + 1e-12)).all()  # every vertex inside the wall
@@ -225,8 +234,8 @@ def test_fan4_adaptive_keeps_open_and_non_manifold_surfaces():
     b = 0.5321
     bounds = np.array([[-b, b], [-b, b], [0.0123, 0.0123]])
     ids, s, nrm = field_arrays(N, [((0, 0, 1), 0.0123, bounds)])
-    v4, f4, _ = edc_extract(N, ids, s, nrm, faces="fan4")
-    va, fa, _ = edc_extract(N, ids, s, nrm, faces="fan4-adaptive")
+    v4, f4 = edc(N, ids, s, nrm, faces="fan4")
+    va, fa = edc(N, ids, s, nrm, faces="fan4-adaptive")
     assert np.array_equal(fa, f4) and np.array_equal(va, v4)  # the open square: all fans
     # 8 x 8 intersected z-edges (grid coordinates -1 + k h, k = 4..11, within b): an 8 x 8 grid of
     # quads whose boundary loop has 4 x 8 edges
@@ -236,8 +245,8 @@ def test_fan4_adaptive_keeps_open_and_non_manifold_surfaces():
     assert (counts == 1).sum() == 4 * side and counts.max() == 2
     c1, c2 = 0.0711, -0.1234
     ids, s, nrm = field_arrays(N, [((1, 0, 0), c1, None), ((0, 1, 0), c2, None)])
-    v4, f4, _ = edc_extract(N, ids, s, nrm, faces="fan4")
-    va, fa, _ = edc_extract(N, ids, s, nrm, faces="fan4-adaptive")
+    v4, f4 = edc(N, ids, s, nrm, faces="fan4")
+    va, fa = edc(N, ids, s, nrm, faces="fan4-adaptive")
     c4, ca = edge_use_counts(f4), edge_use_counts(fa)
     assert (ca > 2).sum() == (c4 > 2).sum() >= N - 3  # the crossing line stays non-manifold
     assert (ca == 1).sum() == (c4 == 1).sum()
@@ -293,21 +302,24 @@ def test_qef_solve_matches_numpy_pinv():
     assert np.allclose(qef_solve(packed, r, 0.1), expected, atol=1e-8)
 
 
-def test_oracle_wrapper_and_empty_and_errors():
+def test_float32_edge_field_and_empty_and_errors():
     field, _, _ = planes_edge_field(N, [((0, 0, 1), 0.123, None)])
-    v, f, _ = edc_from_edge_field(field)
+    ids = np.flatnonzero(field.hit)
+    v, f = edc(N, ids, field.s[ids], field.normal[ids])
     assert np.abs(v[:, 2] - 0.123).max() < 1e-6  # float32 storage
-    v0, f0, _ = edc_from_edge_field(field, use_normals=False)
+    v0, f0 = edc(N, ids, field.s[ids], None)
     assert len(f0) == len(f)
-    v, f, t = edc_extract(N, np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros((0, 3)))
-    assert v.shape == (0, 3) and f.shape == (0, 3)
+    with StageTimer().active() as timer, stage("extract"):
+        empty = edge_dual_contouring(N, np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros((0, 3)))
+    assert empty.vertices.shape == (0, 3) and empty.faces.shape == (0, 3) and empty.info == {"intersected_edges": 0}
+    assert timer.seconds["extract_qef_s"] == timer.seconds["extract_faces_s"] == 0.0
     with pytest.raises(ValueError, match="edge_ids"):
-        edc_extract(N, np.array([num_edges(N)]), np.array([0.5]))
+        edge_dual_contouring(N, np.array([num_edges(N)]), np.array([0.5]))
     with pytest.raises(ValueError, match="duplicate"):
-        edc_extract(N, np.array([5, 3, 5]), np.array([0.5, 0.5, 0.5]))
+        edge_dual_contouring(N, np.array([5, 3, 5]), np.array([0.5, 0.5, 0.5]))
     with pytest.raises(ValueError, match="s must"):
-        edc_extract(N, np.array([3]), np.array([1.5]))
+        edge_dual_contouring(N, np.array([3]), np.array([1.5]))
     with pytest.raises(ValueError, match="normals"):
-        edc_extract(N, np.array([3]), np.array([0.5]), np.zeros((2, 3)))
+        edge_dual_contouring(N, np.array([3]), np.array([0.5]), np.zeros((2, 3)))
     with pytest.raises(ValueError, match="faces"):
-        edc_extract(N, np.array([3]), np.array([0.5]), faces="hex")
+        edge_dual_contouring(N, np.array([3]), np.array([0.5]), faces="hex")

@@ -8,8 +8,9 @@ import pytest
 import torch
 
 from methods.base import Method
-from methods.core.fitting import (BUDGETS, Budget, check_not_constant, cosine_lr, fit, get_budget,
-                             learning_rate, model_from_bytes, model_to_bytes, parameter_groups)
+from methods.core.fitting import (BUDGETS, Budget, check_not_constant, fit, get_budget, model_from_bytes,
+                                  model_to_bytes, parameter_groups)
+from methods.core.schedules import cosine_lr
 from methods.extractors.marching_cubes import marching_cubes_grid
 from methods.core.training_loop import FittingError
 from methods.core.network import GridNetwork, make_network
@@ -59,7 +60,7 @@ def test_budgets_are_data_and_paper_matches_spec():
     cpu, mlp = BUDGETS["cpu"], BUDGETS["cpu-mlp"]  # the backbone comparison: the same samples, no grid
     assert (mlp.backbone, mlp.batch_size, mlp.num_samples) == ("mlp", cpu.batch_size, cpu.num_samples)
     assert get_budget("tiny") is BUDGETS["tiny"]
-    with pytest.raises(ValueError, match="known budgets: paper, quick, tiny, cpu"):
+    with pytest.raises(ValueError, match="known encode budgets: paper, quick, tiny, cpu"):
         get_budget("huge")
     with pytest.raises(Exception):
         paper.depth = 3  # frozen
@@ -111,18 +112,7 @@ def test_budget_backbone_settings_are_checked():
     assert replace(GRID_TOY, grid_resolutions=[8, 16]).grid_resolutions == (8, 16)  # stored as a tuple
 
 
-def test_cosine_schedule_endpoints_and_midpoint():
-    assert cosine_lr(0, 100, 1e-3, 1e-5) == pytest.approx(1e-3)
-    assert cosine_lr(50, 100, 1e-3, 1e-5) == pytest.approx(0.5 * (1e-3 + 1e-5))
-    assert cosine_lr(100, 100, 1e-3, 1e-5) == pytest.approx(1e-5)
-
-
-def test_warmup_ramps_linearly_then_follows_the_cosine():
-    assert learning_rate(0, 100, 1e-2, 1e-4, warmup_steps=10) == pytest.approx(1e-3)  # 1/10 of cosine(0)
-    assert learning_rate(4, 100, 1e-2, 1e-4, warmup_steps=10) == pytest.approx(0.5 * cosine_lr(4, 100, 1e-2, 1e-4))
-    for step in (10, 50, 100):
-        assert learning_rate(step, 100, 1e-2, 1e-4, warmup_steps=10) == cosine_lr(step, 100, 1e-2, 1e-4)
-    assert learning_rate(0, 100, 1e-2, 1e-4) == cosine_lr(0, 100, 1e-2, 1e-4)  # no warm-up
+def test_grid_budgets_warm_up_and_the_fraction_is_checked():
     assert BUDGETS["cpu"].warmup_fraction == 0.05 and BUDGETS["tiny-grid"].warmup_fraction == 0.05
     assert all(BUDGETS[name].warmup_fraction == 0.0 for name in ("paper", "quick", "tiny"))
     with pytest.raises(ValueError, match=r"budget 'toy': warmup_fraction=1.0: expected float in \[0, 1\)"):
@@ -245,10 +235,12 @@ def test_grid_backbone_fits_a_sphere_sdf_deterministically(fit_seed, measured):
     def area(V, F):
         return 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1).sum()
 
-    V, F = marching_cubes_grid(dense_grid_points(res.model, 32)[..., 0], level=0.0, inside="low")
+    fitted = marching_cubes_grid(dense_grid_points(res.model, 32)[..., 0], level=0.0, inside="low")
+    V, F = fitted.vertices, fitted.faces
     axis = np.linspace(-1, 1, 32)
     exact = np.linalg.norm(np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1), axis=-1) - 0.5
-    Ve, Fe = marching_cubes_grid(exact, level=0.0, inside="low")
+    reference = marching_cubes_grid(exact, level=0.0, inside="low")
+    Ve, Fe = reference.vertices, reference.faces
     radial = np.abs(np.linalg.norm(V, axis=1) - 0.5).max()
     measured(near_error=near_error, radial_error=radial, area_ratio=area(V, F) / area(Ve, Fe))
     assert near_error < 0.002

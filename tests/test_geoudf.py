@@ -31,8 +31,7 @@ import trimesh
 
 from benchmark.grid import grid_points, spacing
 from methods.base import get_method
-from methods.pointcloud.knn.network import KNN_BUDGETS
-from methods.pointcloud.knn.training import training_shapes
+from methods.pointcloud.training_set import training_shapes
 import methods.pointcloud.geoudf.method as geoudf
 from methods.pointcloud.geoudf.extraction import (CELL_EDGES, CORNER_PAIRS, CORNERS, crossing_pairs, cube_labels, edge_marching_cubes,
                                        edge_points, triangle_table)
@@ -41,7 +40,7 @@ from tests.learned_checks import check_training_is_deterministic, check_weights_
 
 pytestmark = pytest.mark.usefixtures("torch_threads")
 
-TINY = KNN_BUDGETS.get("tiny")
+TINY = geoudf.GEOUDF_FAMILY.budgets.get("tiny")
 SPHERE_RADIUS = 0.7
 SPHERE_CD_BOUND = 0.03
 SPHERE_RADIUS_BOUND = 0.035
@@ -55,7 +54,7 @@ def _sphere_cloud(n: int, seed: int = 0) -> np.ndarray:
 
 def _small_network(seed: int = 0):
     torch.manual_seed(seed)
-    config = dataclasses.replace(geoudf.GEOUDF_CONFIGS["tiny"], patch_points=200)
+    config = dataclasses.replace(TINY, patch_points=200)
     return make_geoudf_network(**config.network_config()).eval()
 
 
@@ -70,7 +69,8 @@ def _sphere_fields(N: int, R: float):
 def test_emc_on_an_exact_sphere_udf_is_a_closed_mesh_on_the_sphere():
     N, R = 40, 0.55
     h = spacing(N)
-    V, F, info = edge_marching_cubes(*_sphere_fields(N, R), snap=1e-3)
+    mesh = edge_marching_cubes(*_sphere_fields(N, R), snap=1e-3)
+    V, F, info = mesh.vertices, mesh.faces, mesh.info
     assert info["emc_cut_cells"] > 0
     assert np.abs(np.linalg.norm(V, axis=1) - R).max() < 0.05 * h
     mesh = trimesh.Trimesh(V, F, process=False)
@@ -83,7 +83,8 @@ def test_emc_miscuts_few_cells_of_an_exact_sphere():
     # the wrong edges (24 of 3,576 vertices up to 0.7 h off, a few boundary edges), as in the authors' code
     N, R = 48, 0.6
     h = spacing(N)
-    V, F, _ = edge_marching_cubes(*_sphere_fields(N, R), snap=1e-3)
+    mesh = edge_marching_cubes(*_sphere_fields(N, R), snap=1e-3)
+    V, F = mesh.vertices, mesh.faces
     error = np.abs(np.linalg.norm(V, axis=1) - R)
     assert error.max() < h and np.mean(error < 0.05 * h) > 0.99
     assert abs(trimesh.Trimesh(V, F, process=False).area - 4 * np.pi * R ** 2) < 0.005 * 4 * np.pi * R ** 2
@@ -95,7 +96,8 @@ def test_emc_on_an_exact_plane_udf_lies_on_the_plane_and_covers_the_square():
     udf = np.abs(p[..., 2] - z0)
     grad = np.zeros_like(p)
     grad[..., 2] = np.sign(p[..., 2] - z0)
-    V, F, _ = edge_marching_cubes(udf, grad, snap=1e-3)
+    mesh = edge_marching_cubes(udf, grad, snap=1e-3)
+    V, F = mesh.vertices, mesh.faces
     assert np.abs(V[:, 2] - z0).max() < 1e-12
     assert trimesh.Trimesh(V, F, process=False).area == pytest.approx(4.0, abs=1e-9)
 
@@ -189,10 +191,8 @@ def test_reconstruct_is_deterministic_and_refuses_an_empty_cloud():
         method.reconstruct(np.zeros((0, 3)), 24, model=net)
 
 
-def test_training_is_deterministic(monkeypatch):
-    short = dataclasses.replace(geoudf.GEOUDF_CONFIGS["tiny"], pu_steps=2, rec_steps=2, log_every=1)
-    monkeypatch.setitem(geoudf.GEOUDF_CONFIGS, "tiny", short)
-    check_training_is_deterministic(get_method("geoudf"), TINY)
+def test_training_is_deterministic():
+    check_training_is_deterministic(get_method("geoudf"), dataclasses.replace(TINY, pu_steps=2, rec_steps=2, log_every=1))
 
 
 @pytest.mark.slow

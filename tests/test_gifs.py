@@ -34,17 +34,16 @@ from benchmark.fields import ExactFields
 from benchmark.grid import LOWER, spacing
 from benchmark.surface import sample_surface
 from methods.base import get_method
-from methods.pointcloud.knn.network import KNN_BUDGETS
-from methods.pointcloud.knn.training import training_shapes
+from methods.pointcloud.training_set import training_shapes
 import methods.pointcloud.gifs.method as gifs
 from methods.pointcloud.gifs.extraction import (CORNER_PAIRS, CORNERS, CUBE_EDGE_AXES, CUBE_EDGES, PARTITIONS, corner_signs,
-                                     extract_gifs_mesh)
+                                     flag_split_marching_cubes)
 from methods.pointcloud.gifs.network import make_gifs_network, voxelize_cloud
 from tests.learned_checks import check_training_is_deterministic, check_weights_round_trip
 
 pytestmark = pytest.mark.usefixtures("torch_threads")
 
-TINY = KNN_BUDGETS.get("tiny")
+TINY = gifs.GIFS_FAMILY.budgets.get("tiny")
 
 
 def _cubes_near(udf_of_points, N: int, within: float) -> np.ndarray:
@@ -80,7 +79,8 @@ def test_one_cube_cut_off_corner_is_one_hand_worked_triangle():
     flags = (CORNER_PAIRS[:, 0] == 0).astype(np.float32)[None]  # pairs (0, b): separated
     local = CORNERS.astype(float)
     udf = np.abs(local.sum(axis=1) - 0.5)[None] * h / np.sqrt(3.0)  # plane x + y + z = h / 2 (local)
-    V, F, info = extract_gifs_mesh(cube, flags, udf, N)
+    mesh = flag_split_marching_cubes(cube, flags, udf, N)
+    V, F, info = mesh.vertices, mesh.faces, mesh.info
     expected = LOWER + (cube + 0.5 * np.eye(3)) * h
     assert info["surface_cubes"] == 1 and F.shape == (1, 3)
     np.testing.assert_allclose(np.sort(V, axis=0), np.sort(expected, axis=0), atol=1e-12)
@@ -111,7 +111,8 @@ def test_extraction_on_exact_sphere_flags_is_a_closed_mesh_on_the_sphere():
     grazes = np.linalg.norm(u + t[..., None] * d, axis=-1) < r  # both outside, the segment dips in
     flags = ((inside_u != inside_v) | (~inside_u & ~inside_v & grazes)).astype(np.float32)
     udf = np.abs(np.linalg.norm(corners, axis=-1) - r)
-    V, F, info = extract_gifs_mesh(cubes, flags, udf, N)
+    mesh = flag_split_marching_cubes(cubes, flags, udf, N)
+    V, F = mesh.vertices, mesh.faces
     assert len(F) > 1000
     assert np.abs(np.linalg.norm(V, axis=1) - r).max() < 0.01 * h
     assert _boundary_edges(F) == 0
@@ -128,7 +129,8 @@ def test_extraction_on_exact_open_square_flags_lies_on_the_square():
     corners = _corner_points(cubes, N)
     u, v = corners[:, CORNER_PAIRS[:, 0]].reshape(-1, 3), corners[:, CORNER_PAIRS[:, 1]].reshape(-1, 3)
     hit, _, _ = square.segments(u, v)
-    V, F, _ = extract_gifs_mesh(cubes, hit.reshape(-1, 28), square.udf(corners.reshape(-1, 3)).reshape(-1, 8), N)
+    mesh = flag_split_marching_cubes(cubes, hit.reshape(-1, 28), square.udf(corners.reshape(-1, 3)).reshape(-1, 8), N)
+    V, F = mesh.vertices, mesh.faces
     assert len(F) > 500
     assert square.udf(V).max() < 1e-6 * h
     assert _boundary_edges(F) > 0
@@ -181,10 +183,8 @@ def test_reconstruct_is_deterministic_and_refuses_an_empty_cloud():
         method.reconstruct(points, 20)
 
 
-def test_training_is_deterministic(monkeypatch):
-    short = dataclasses.replace(gifs.GIFS_CONFIGS["tiny"], steps=3, log_every=1)
-    monkeypatch.setitem(gifs.GIFS_CONFIGS, "tiny", short)
-    check_training_is_deterministic(get_method("gifs"), TINY)
+def test_training_is_deterministic():
+    check_training_is_deterministic(get_method("gifs"), dataclasses.replace(TINY, steps=3, log_every=1))
 
 
 @pytest.mark.slow

@@ -56,8 +56,10 @@ import trimesh
 from benchmark.metrics import evaluate
 from benchmark.surface import sample_surface
 from methods.base import get_method
-from methods.pointcloud.knn.network import KNN_BUDGETS, make_knn_network
-from methods.pointcloud.knn.training import train, training_shapes
+from methods.pointcloud.knn.network import make_knn_network
+from methods.pointcloud.knn.training import KNN_BUDGETS
+from methods.pointcloud.knn.training import train
+from methods.pointcloud.training_set import training_shapes
 
 pytestmark = pytest.mark.usefixtures("torch_threads")
 

@@ -1,5 +1,4 @@
-"""The K-NN local networks of point-cloud reconstruction: exact neighbourhoods, a
-permutation-invariant local encoder, separate u and v encoders for segments, rebuild from config,
+"""The K-NN local networks of point-cloud reconstruction: a permutation-invariant local encoder, separate u and v encoders for segments, rebuild from config,
 budgets, and a tiny overfit of a UDF."""
 
 import numpy as np
@@ -7,8 +6,9 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from methods.pointcloud.knn.network import (KNN_BUDGETS, KNNBudget, LocalEncoder, PointKNNNetwork, SegmentKNNNetwork,
-                                 knn_neighbourhoods, make_knn_network, segment_neighbourhoods)
+from methods.pointcloud.knn.network import LocalEncoder, PointKNNNetwork, SegmentKNNNetwork, make_knn_network
+from methods.pointcloud.knn.training import KNN_BUDGETS, KNNBudget
+from methods.pointcloud.neighbourhoods import knn_neighbourhoods
 
 SMALL = dict(encoder_width=16, encoder_depth=1, head_width=16, head_depth=1)
 
@@ -34,28 +34,6 @@ def _trained_stats(net, *inputs):
     with torch.no_grad():
         net(*inputs)
     return net.eval()
-
-
-def test_knn_neighbourhoods_match_brute_force_argsort():
-    rng = np.random.default_rng(0)
-    points, queries, k = rng.random((300, 3)), rng.random((50, 3)) * 1.2 - 0.1, 7
-    idx = knn_neighbourhoods(points, queries, k)
-    assert idx.shape == (50, k) and idx.dtype == np.int64
-    d2 = ((queries[:, None, :] - points[None, :, :]) ** 2).sum(-1)
-    np.testing.assert_array_equal(idx, np.argsort(d2, axis=1)[:, :k])  # nearest first, exact
-    # k = 1 is still (Q, 1); a segment's query is its midpoint; float32 input is fine
-    np.testing.assert_array_equal(knn_neighbourhoods(points.astype(np.float32), queries, 1)[:, 0], d2.argmin(1))
-    seg = np.stack([queries - 0.01, queries + 0.01], axis=1)
-    np.testing.assert_array_equal(segment_neighbourhoods(points, seg, k), idx)
-    np.testing.assert_array_equal(segment_neighbourhoods(points, seg.reshape(-1, 6), k), idx)
-    assert knn_neighbourhoods(points, np.zeros((0, 3)), k).shape == (0, k)
-
-
-def test_knn_neighbourhoods_refuse_fewer_points_than_k():
-    with pytest.raises(ValueError, match="at least 20 input points, got 5"):
-        knn_neighbourhoods(np.zeros((5, 3)), np.zeros((2, 3)), 20)
-    with pytest.raises(ValueError, match=r"\(n, 3\)"):
-        knn_neighbourhoods(np.zeros((30, 2)), np.zeros((2, 3)), 3)
 
 
 @pytest.mark.parametrize("kind", ["segment", "point"])

@@ -1,5 +1,5 @@
-"""Grid queries of the K-NN reconstruction networks (methods/pointcloud/knn/query.py) and the occupancy fill of
-occ-knn, checked against brute force and hand-made volumes."""
+"""Grid queries of the K-NN reconstruction networks (methods/pointcloud/knn/query.py),
+checked against finite differences and chunking."""
 
 from __future__ import annotations
 
@@ -7,11 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from benchmark.grid import spacing
 from methods.pointcloud.knn.network import make_knn_network
-from methods.pointcloud.knn.query import band_edges, band_points, evaluate_knn, nearest_distance
-from methods.extractors.marching_cubes import far_occupancy
-from benchmark.grid import edge_inputs, point_inputs
+from methods.pointcloud.knn.query import evaluate_knn
 
 N = 24
 
@@ -19,30 +16,6 @@ N = 24
 def cloud(n=400, seed=0):
     x = np.random.default_rng(seed).normal(size=(n, 3))
     return 0.6 * x / np.linalg.norm(x, axis=1, keepdims=True)
-
-
-def brute_distance(points, queries):
-    return np.sqrt(((queries[:, None, :] - points[None, :, :]) ** 2).sum(-1)).min(axis=1)
-
-
-def test_band_points_and_edges_are_exactly_the_grid_queries_within_the_radius():
-    pts, r = cloud(), 2.0 * spacing(N)
-    every = np.argwhere(np.ones((N, N, N), bool))
-    inside = brute_distance(pts, point_inputs(N, every).astype(np.float64)) <= r
-    assert {tuple(p) for p in band_points(pts, N, r)} == {tuple(p) for p in every[inside]}
-    mids = edge_inputs(N).reshape(-1, 2, 3).mean(axis=1)
-    expected = np.flatnonzero(brute_distance(pts, mids.astype(np.float64)) <= r)
-    assert np.array_equal(np.sort(band_edges(pts, N, r)), expected)
-    assert np.allclose(nearest_distance(pts, mids[:5]), brute_distance(pts, mids[:5].astype(np.float64)))
-
-
-def test_far_region_enclosed_by_the_band_is_inside():
-    known = np.zeros((N, N, N), bool)
-    known[4:20, 4:20, 4:20] = True
-    known[6:18, 6:18, 6:18] = False  # a hollow box: the band of a closed surface
-    occ = far_occupancy(known)
-    assert occ[12, 12, 12] == 1 and occ[0, 0, 0] == 0 and occ[5, 5, 5] == 0  # inside, outside, band
-    assert occ[6:18, 6:18, 6:18].all() and occ.sum() == 12 ** 3
 
 
 def test_evaluate_knn_gradient_matches_finite_differences():

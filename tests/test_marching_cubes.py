@@ -4,11 +4,17 @@ import numpy as np
 import pytest
 
 from benchmark.grid import grid_points, spacing
-from methods.extractors.marching_cubes import marching_cubes_grid
+from methods.extractors.marching_cubes import far_occupancy, marching_cubes_grid
 
 N = 40
 R = 0.6
 CENTRE = np.array([0.1, -0.05, 0.02])
+
+
+def _mesh(extraction):
+    """(vertices, faces) of an Extraction, after checking its array types."""
+    assert extraction.vertices.dtype == np.float64 and extraction.faces.dtype == np.int64
+    return extraction.vertices, extraction.faces
 
 
 def sphere_sdf(N=N, r=R, centre=CENTRE):
@@ -28,7 +34,7 @@ def face_normals_dot_radial(v, f, centre=CENTRE):
 
 
 def test_sdf_sphere_is_in_frame_and_outward():
-    v, f = marching_cubes_grid(sphere_sdf(), level=0.0, inside="low")
+    v, f = _mesh(marching_cubes_grid(sphere_sdf(), level=0.0, inside="low"))
     assert v.dtype == np.float64 and f.dtype == np.int64
     h = spacing(N)
     radius = np.linalg.norm(v - CENTRE, axis=1)
@@ -42,7 +48,7 @@ def test_sdf_sphere_is_in_frame_and_outward():
 def test_occupancy_sphere_is_outward():
     sdf = sphere_sdf()
     prob = 1.0 / (1.0 + np.exp(sdf / 0.02))  # high inside, 0.5 on the sphere
-    v, f = marching_cubes_grid(prob, level=0.5, inside="high")
+    v, f = _mesh(marching_cubes_grid(prob, level=0.5, inside="high"))
     assert signed_volume(v, f) > 0
     assert np.isclose(signed_volume(v, f), 4 / 3 * np.pi * R**3, rtol=0.02)
     assert (face_normals_dot_radial(v, f) > 0).all()
@@ -50,7 +56,7 @@ def test_occupancy_sphere_is_outward():
 
 def test_bool_mask_high_inside_is_outward():
     mask = sphere_sdf() < 0
-    v, f = marching_cubes_grid(mask, level=0.5, inside="high")
+    v, f = _mesh(marching_cubes_grid(mask, level=0.5, inside="high"))
     assert len(f) > 0 and signed_volume(v, f) > 0
     assert (face_normals_dot_radial(v, f) > 0).all()
     # a 0/1 mask puts every vertex at an edge midpoint: within h/2 + h^2 of the sphere
@@ -59,8 +65,8 @@ def test_bool_mask_high_inside_is_outward():
 
 def test_low_and_high_give_opposite_windings_of_the_same_surface():
     sdf = sphere_sdf()
-    v1, f1 = marching_cubes_grid(sdf, 0.0, "low")
-    v2, f2 = marching_cubes_grid(-sdf, 0.0, "high")
+    v1, f1 = _mesh(marching_cubes_grid(sdf, 0.0, "low"))
+    v2, f2 = _mesh(marching_cubes_grid(-sdf, 0.0, "high"))
     assert len(v1) == len(v2) and len(f1) == len(f2)
     assert np.allclose(np.sort(v1, axis=0), np.sort(v2, axis=0))
     assert np.isclose(signed_volume(v1, f1), signed_volume(v2, f2))
@@ -68,7 +74,7 @@ def test_low_and_high_give_opposite_windings_of_the_same_surface():
 
 @pytest.mark.parametrize("volume", [np.ones((8, 8, 8)), np.full((8, 8, 8), 0.5), np.zeros((8, 8, 8), bool)])
 def test_no_crossing_gives_empty_mesh(volume):
-    v, f = marching_cubes_grid(volume, level=0.5, inside="high")
+    v, f = _mesh(marching_cubes_grid(volume, level=0.5, inside="high"))
     assert v.shape == (0, 3) and f.shape == (0, 3)
 
 
@@ -81,3 +87,12 @@ def test_bad_inputs_raise_one_line_errors():
         marching_cubes_grid(np.zeros((4, 4, 5)))
     with pytest.raises(ValueError, match="inside"):
         marching_cubes_grid(sphere_sdf(N=8), inside="outside")
+
+
+def test_far_region_enclosed_by_the_band_is_inside():
+    known = np.zeros((N, N, N), bool)
+    known[4:20, 4:20, 4:20] = True
+    known[6:18, 6:18, 6:18] = False  # a hollow box: the band of a closed surface
+    occ = far_occupancy(known)
+    assert occ[12, 12, 12] == 1 and occ[0, 0, 0] == 0 and occ[5, 5, 5] == 0  # inside, outside, band
+    assert occ[6:18, 6:18, 6:18].all() and occ.sum() == 12 ** 3

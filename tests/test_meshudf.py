@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from benchmark.grid import grid_points, spacing
-from methods.extractors.meshudf import CUBE_EDGES, mc_case_table, meshudf_extract
+from benchmark.timing import StageTimer, stage
+from methods.extractors.meshudf import CUBE_EDGES, mc_case_table, meshudf_marching_cubes
 
 N = 40
 H = spacing(N)
@@ -37,6 +38,12 @@ def cube_distance(q, a=0.4567):
     return np.where(inside, (a - aq).min(-1), d_out), np.where(inside[..., None], g_in, g_out)
 
 
+def meshudf(*args, **options):
+    """(vertices, faces) of :func:`meshudf_marching_cubes`."""
+    mesh = meshudf_marching_cubes(*args, **options)
+    return mesh.vertices, mesh.faces
+
+
 def area(v, f):
     return float(np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1).sum() / 2)
 
@@ -63,8 +70,12 @@ def test_case_table_basics():
 def test_sphere_closed_near_radius():
     r = 0.6
     d, g = sphere_udf(r)
-    v, f, timings = meshudf_extract(d, g)
-    assert set(timings) == {"candidates", "pseudo_signs", "triangulation", "filter"}
+    with StageTimer().active() as timer, stage("extract"):
+        mesh = meshudf_marching_cubes(d, g)
+    v, f = mesh.vertices, mesh.faces
+    assert set(timer.seconds) == {"extract_s", "extract_candidates_s", "extract_pseudo_signs_s",
+                                  "extract_triangulation_s", "extract_filter_s"}
+    assert v.dtype == np.float64 and f.dtype == np.int64 and mesh.info == {}
     radial = np.abs(np.linalg.norm(v, axis=1) - r)
     assert radial.max() < H / 4
     assert radial.mean() < H / 50  # Chamfer-like mean distance to the sphere
@@ -81,18 +92,18 @@ def test_udf_callback_is_used_for_the_face_filter():
         seen["shape"] = q.shape
         return np.abs(np.linalg.norm(q, axis=1) - r)
 
-    v1, f1, _ = meshudf_extract(d, g, udf_at=exact)
-    v2, f2, _ = meshudf_extract(d, g)
+    v1, f1 = meshudf(d, g, udf_at=exact)
+    v2, f2 = meshudf(d, g)
     assert seen["shape"][1] == 3 and len(f1) == len(f2)
     # a callback that says "far" everywhere removes every face
-    v3, f3, _ = meshudf_extract(d, g, udf_at=lambda q: np.ones(len(q)))
+    v3, f3 = meshudf(d, g, udf_at=lambda q: np.ones(len(q)))
     assert len(f3) == 0 and len(v3) == 0
 
 
 def test_open_square_sheet_is_single_and_open():
     b, z0 = 0.5321, 0.0123
     d, g = sheet_distance(P, b, z0)
-    v, f, _ = meshudf_extract(d, g)
+    v, f = meshudf(d, g)
     counts = edge_use_counts(f)
     assert (counts == 1).sum() > 0 and counts.max() == 2  # open, manifold
     assert np.abs(v[:, 2] - z0).max() < H / 4  # one layer on the plane
@@ -103,25 +114,25 @@ def test_open_square_sheet_is_single_and_open():
 def test_cube_keeps_its_area():
     a = 0.4567
     d, g = cube_distance(P, a)
-    v, f, _ = meshudf_extract(d, g)
+    v, f = meshudf(d, g)
     assert area(v, f) == pytest.approx(6 * (2 * a) ** 2, rel=0.05)
     assert (edge_use_counts(f) == 1).sum() == 0  # closed
     assert np.abs(cube_distance(v, a)[0]).max() < H / 6
     # the simple anchor rule cuts holes along the sharp edges
-    v2, f2, _ = meshudf_extract(d, g, sign_rule="anchor")
+    v2, f2 = meshudf(d, g, sign_rule="anchor")
     assert (edge_use_counts(f2) == 1).sum() > 0
     assert area(v2, f2) < area(v, f)
 
 
 def test_far_field_gives_empty_mesh_and_bad_inputs_raise():
     d = np.ones((8, 8, 8))
-    v, f, _ = meshudf_extract(d, np.zeros((8, 8, 8, 3)))
+    v, f = meshudf(d, np.zeros((8, 8, 8, 3)))
     assert v.shape == (0, 3) and f.shape == (0, 3)
     d[0, 0, 0] = np.nan  # NaN = unknown = far
-    assert len(meshudf_extract(d, np.zeros((8, 8, 8, 3)))[1]) == 0
+    assert len(meshudf(d, np.zeros((8, 8, 8, 3)))[1]) == 0
     with pytest.raises(ValueError, match="grad"):
-        meshudf_extract(np.ones((8, 8, 8)), np.zeros((8, 8, 8)))
+        meshudf_marching_cubes(np.ones((8, 8, 8)), np.zeros((8, 8, 8)))
     with pytest.raises(ValueError, match="udf"):
-        meshudf_extract(np.ones((8, 8, 7)), np.zeros((8, 8, 7, 3)))
+        meshudf_marching_cubes(np.ones((8, 8, 7)), np.zeros((8, 8, 7, 3)))
     with pytest.raises(ValueError, match="sign_rule"):
-        meshudf_extract(np.ones((8, 8, 8)), np.zeros((8, 8, 8, 3)), sign_rule="majority")
+        meshudf_marching_cubes(np.ones((8, 8, 8)), np.zeros((8, 8, 8, 3)), sign_rule="majority")

@@ -3,7 +3,6 @@ sheet and tube, crossing planes), and a tiny neural fit of each on a sphere."""
 
 import numpy as np
 import pytest
-import torch
 import trimesh
 
 from benchmark.field_cache import FieldCache
@@ -137,10 +136,9 @@ def edge_coverage(mesh_V, mesh_F, corners, edges, n=200_000):
 def test_oracle_sals_cube_is_closed_but_where_grid_edges_cross_its_sharp_edges_twice(tmp_path):
     """E-DC of the exact SALS field of a box in general position, N = 48: NDC's edge test finds all 12
     edges along their whole length and nothing else, and the mesh is closed except within 0.2 h of
-    the box's edges. There (138 open or non-manifold mesh edges, measured; 42 at N = 32, 168 at 128)
-    a grid edge crossing both faces of a sharp edge carries one first-hit label, SALS's own
-    representation, and E-DC adds its quad where a sign-based DC would add none: so even the exact
-    field gives no watertight cube, and no fit of it can."""
+    the box's edges. There a grid edge crossing both faces of a sharp edge carries one first-hit
+    label, SALS's own representation, and E-DC adds its quad where a sign-based DC would add none:
+    so even the exact field gives no watertight cube, and no fit of it can."""
     from benchmark.grid import spacing
 
     V, F, corners, edges = generic_box()
@@ -163,7 +161,7 @@ def test_neural_sals_cube_finds_the_twelve_sharp_edges(fit_seed, torch_threads, 
     N = 64: NDC's edge test finds every one of the 12 box edges along >= 70 % of its length, along
     >= 90 % on average, and CD < 0.013. Measured over seeds 0-4 x float paths (default, avx2,
     native) x 1 and 2 threads (docs/spread/learned.md): worst edge 0.875-0.975, mean over the edges
-    0.950-0.998, CD 0.0064-0.0101; an Intel Xeon's run of seed 0 found a worst edge of 0.75, so the bound
+    0.950-0.998, CD 0.0064-0.0101; another machine's run of seed 0 found a worst edge of 0.75, so the bound
     on the worst edge is the one that moves most from one CPU to another. Not closed: besides the
     sharp-edge quads the exact field has too (test above), the blurred o marks edges next to the
     faces (seed 0: 4,270 boundary and 4,985 non-manifold mesh edges), and most sharp-edge points

@@ -22,8 +22,8 @@ import torch
 import trimesh
 
 from methods.base import get_method
-from methods.pointcloud.knn.network import KNN_BUDGETS, knn_neighbourhoods
-from methods.pointcloud.knn.training import training_shapes
+from methods.pointcloud.neighbourhoods import knn_neighbourhoods
+from methods.pointcloud.training_set import training_shapes
 import methods.pointcloud.poco.method as poco
 from methods.pointcloud.poco.network import (AttentionDecoder, FKAConv, batch_structures, cloud_structure, make_poco_network,
                                   quantized_subsample)
@@ -31,7 +31,7 @@ from tests.learned_checks import check_training_is_deterministic, check_weights_
 
 pytestmark = pytest.mark.usefixtures("torch_threads")
 
-TINY = KNN_BUDGETS.get("tiny")
+TINY = poco.POCO_FAMILY.budgets.get("tiny")
 SPHERE_RADIUS = 0.7
 SPHERE_CD_BOUND = 0.09
 SPHERE_RADIUS_BOUND = 0.09
@@ -109,10 +109,8 @@ def test_reconstruct_is_deterministic_and_refuses_an_empty_cloud():
         method.reconstruct(np.zeros((0, 3)), 24, model=net)
 
 
-def test_training_is_deterministic(monkeypatch):
-    short = dataclasses.replace(poco.POCO_CONFIGS["tiny"], steps=3, log_every=1)
-    monkeypatch.setitem(poco.POCO_CONFIGS, "tiny", short)
-    check_training_is_deterministic(get_method("poco"), TINY)
+def test_training_is_deterministic():
+    check_training_is_deterministic(get_method("poco"), dataclasses.replace(TINY, steps=3, log_every=1))
 
 
 @pytest.mark.slow

@@ -168,8 +168,8 @@ def test_sparse_edges_equal_dense_on_fitted_sals_networks(index, torch_threads):
     """On a fitted SALS network (a built-in part, the cpu budget at 2,000 steps of 1,024 from 200k samples, N = 80) the
     sparse query gives every edge it evaluates the dense query's values bit for bit; the intersected
     edges it does not evaluate lie in blocks whose coarse edges all read o_hat <= o_low: isolated
-    hits away from the surface (on 3 fitted ABC parts at N = 128: 0, 10 and 178 of 54-82k hits, all
-    >= 6.7 h from the GT). Bounded here: no missed hit within 2 h of the GT surface, at most 1 % of the hits."""
+    hits away from the surface. Bounded here: no missed hit within 2 h of the GT surface, at most 1 %
+    of the hits."""
     from benchmark.fields import ExactFields
     from benchmark.sampler import sample_training_data
     from datasets.builtin import generate_shape

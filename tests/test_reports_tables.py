@@ -24,7 +24,7 @@ from reports.timing import timing_frame, write_timing
 SHAPES = ("cube", "sphere", "cylinder")
 METHODS = ("sals", "sdf")
 CONTEXT = dict(dataset="builtin", task="encode", mode="neural", budget="quick",
-               budget_values={"steps": 2000, "lr": 0.001}, grid=128, seeds=[0, 1], methods=list(METHODS),
+               budget_values={"encode": {"steps": 2000, "lr": 0.001}}, grid=128, seeds=[0, 1], methods=list(METHODS),
                shapes=list(SHAPES), metric_preset="default", eval_points=1_000_000, device="cpu",
                cpu_model="Test CPU 3000", gpu=None, git_commit="0123456789abcdef",
                execution={"executor": "process", "workers": 2, "threads_per_job": 1})

@@ -60,7 +60,7 @@ def test_options_of_the_other_task_are_refused_with_one_line(tmp_path, capsys, a
 def test_a_learned_method_trains_once_and_later_jobs_and_runs_load_its_network(tmp_path):
     import json
 
-    from methods.pointcloud.knn.network import KNN_BUDGETS, KNNBudget
+    from methods.pointcloud.knn.training import KNN_BUDGETS, KNNBudget
 
     budget = KNNBudget("test-knn", k=8, encoder_width=16, encoder_depth=1, head_width=16, head_depth=1, steps=20,
                        shapes_per_batch=2, samples_per_item=256, points_per_item=2000, training_shapes=2,
@@ -87,7 +87,11 @@ def test_a_learned_method_trains_once_and_later_jobs_and_runs_load_its_network(t
     assert np.allclose(learned["cd"].to_numpy(), b[b.method == "udf-knn"]["cd"].to_numpy())
     assert a[a.method == "poisson"]["budget"].isna().all()  # the classic baseline trains nothing
     record = json.loads((tmp_path / "a" / "config.json").read_text())
-    assert record["resolved"]["budget"]["name"] == "test-knn" and record["resolved"]["train_dirs"] == [
+    assert record["config"]["budget"] == "test-knn" and record["resolved"]["budget"] == {"knn": {
+        "training_shapes": 2, "pool_samples": 4000, "pool_points": 4000, "k": 8, "encoder_width": 16, "encoder_depth": 1,
+        "head_width": 16, "head_depth": 1, "steps": 20, "shapes_per_batch": 2, "samples_per_item": 256,
+        "points_per_item": 2000, "lr": 1e-3, "weight_decay": 0.01, "log_every": 10}}
+    assert record["resolved"]["train_dirs"] == [
         str((tmp_path / "extra").resolve())]
 
 

@@ -92,7 +92,7 @@ def test_budget_params_override_the_budget_and_are_recorded(fakes, tmp_path):
     assert main(neural_args(out, tmp_path / "cache", "--budget-param", "iterations=30")) == 0
     record = json.loads((out / "config.json").read_text())
     assert record["config"]["budget_params"] == {"iterations": 30}
-    assert record["resolved"]["budget"]["iterations"] == 30
+    assert record["resolved"]["budget"]["encode"]["iterations"] == 30
     info = json.loads(sqlite3.connect(out / "results.db").execute("SELECT info FROM jobs").fetchone()[0])
     assert info["fit_steps"] == 30
 
@@ -104,7 +104,7 @@ def test_budget_params_override_the_budget_and_are_recorded(fakes, tmp_path):
     (["--sweep", "grid"], "use KEY=V1,V2"),
     (["--sweep", "budget.iterations=1,2", "--mode", "oracle"], "oracle mode fits nothing"),
     (["--sweep", "seed=0,1", "--seed", "3"], "both give the seeds"),
-    (["--budget-param", "iters=3"], "no setting 'iters'"),
+    (["--budget-param", "iters=3"], "no method of this run (test_sdf) reads a budget setting 'iters'"),
 ])
 def test_bad_sweeps_are_one_line_naming_the_key(fakes, tmp_path, capsys, args, message):
     out = tmp_path / "run"

@@ -1,7 +1,6 @@
 """``sdf-ndc``: the sdf field extracted by NDC. Oracle mode on a turned box (NDC keeps the sharp
 edges marching cubes cuts off), the fit it shares with ``sdf``, and a machine without the weights."""
 
-import numpy as np
 import pytest
 
 from benchmark.metrics import evaluate
@@ -30,8 +29,8 @@ def test_oracle_turned_box_keeps_its_twelve_sharp_edges(tmp_path):
     mc_scores = evaluate(V, F, mc.vertices, mc.faces, n_points=N_POINTS, seed=0)
     assert ndc_scores["cd"] < 0.02 and ex.info["ndc_cells"] == len(ex.vertices)
     cover, on_edges = edge_coverage(ex.vertices, ex.faces, corners, edges)
-    # every edge found along (nearly) its whole length, few false edges (measured: 0.95 and 0.98;
-    # NDC's learned vertices miss an edge's end more often at coarser grids, 0.72 at N = 48)
+    # every edge found along (nearly) its whole length, few false edges (NDC's learned vertices miss
+    # an edge's end more often at coarser grids)
     assert cover.min() >= 0.9 and on_edges >= 0.9, (cover, on_edges)
     assert ndc_scores["ecd"] < 0.5 * mc_scores["ecd"] and ndc_scores["ef1"] > mc_scores["ef1"] + 0.3
 

@@ -26,18 +26,18 @@ read as an empty mesh.
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass
 from typing import Callable, Sequence
 
 import numpy as np
 import torch
 
-from benchmark.params import Param, check_fields, params_of, setting, with_overrides
-from benchmark.registry import Registry
+from benchmark.params import Param, check_fields, setting
+from methods.core.budgets import register_budget_family
 from methods.core.weights import weights_from_bytes, weights_to_bytes
 from methods.core.device import get_device, seeded_generator
 from methods.core.network import BACKBONES, FeatureGrid, make_network
+from methods.core.schedules import warmup_cosine_lr
 from methods.core.training_loop import FittingError, run_steps
 
 
@@ -56,7 +56,7 @@ class Budget:
     stay those of the default kernel.
     ``log_every``: the loss is checked for NaN/inf and reported to ``progress`` every so many steps.
     ``warmup_fraction``: the first ``round(warmup_fraction * iterations)`` steps ramp both learning
-    rates linearly up to their schedule (:func:`learning_rate`); 0 = none (the MLP budgets).
+    rates linearly up to their schedule (:func:`methods.core.schedules.warmup_cosine_lr`); 0 = none (the MLP budgets).
     """
 
     name: str = setting(Param(kind=str, help="budget name"))
@@ -110,8 +110,7 @@ class Budget:
 #: samples drawn from 1M. *tiny-grid*: the grid backbone at test/CI size (the neural regression tier).
 #: *cpu-mlp*: the cpu budget's fit seconds spent on a plain Softplus MLP (5 x 128, no grid; 1,200 steps
 #: of 4,096 from 1M at the paper's lr 1e-3, cosine-decayed): the backbone comparison (``--recipe backbone``).
-BUDGETS: Registry[Budget] = Registry("budget")
-for _budget in (
+ENCODE_FAMILY = register_budget_family("encode", (
     Budget("paper", depth=9, width=512, iterations=100_000, batch_size=10_000, num_samples=10_000_000,
            log_every=500),
     Budget("quick", depth=5, width=128, iterations=1_000, batch_size=2_048, num_samples=200_000,
@@ -126,21 +125,15 @@ for _budget in (
     Budget("tiny-grid", depth=3, width=32, iterations=250, batch_size=2_048, num_samples=100_000,
            lr=1e-2, lr_final=1e-4, log_every=25, backbone="grid", grid_resolutions=(16, 32, 64),
            grid_channels=4, lr_grid=1e-2, lr_grid_final=1e-4, fused_adam=True, warmup_fraction=0.05),
-):
-    BUDGETS.register(_budget.name, _budget)
-
-
-#: Budget settings a run may override (``--budget-param NAME=VALUE``, sweep keys ``budget.NAME``),
-#: typed and range-checked by the fields' own :class:`Param`.
-BUDGET_PARAMS: dict[str, Param] = params_of(Budget, override=True)
+))
+#: The encode budgets by name.
+BUDGETS = ENCODE_FAMILY.budgets
 
 
 def get_budget(budget: str | Budget, overrides: dict | None = None) -> Budget:
-    """A budget by name (or the budget itself), with ``overrides`` of :data:`BUDGET_PARAMS` applied
-    (typed, range-checked); unknown names list the known ones. The overridden budget keeps its
-    name: every value is in :func:`dataclasses.asdict` of it, which keys the weights cache."""
-    base = budget if isinstance(budget, Budget) else BUDGETS.get(budget)
-    return with_overrides(base, overrides, BUDGET_PARAMS, "budget")
+    """An encode budget by name (or the budget itself), with ``overrides`` of the fields marked
+    ``override=True`` applied (typed, range-checked); unknown names list the known ones."""
+    return ENCODE_FAMILY.get(budget, overrides)
 
 
 @dataclass
@@ -154,18 +147,6 @@ class FitResult:
     iterations: int
     final_loss: float
     samples_per_s: float
-
-
-def cosine_lr(step: int, iterations: int, lr: float, lr_final: float) -> float:
-    """lr_final + (lr - lr_final) (1 + cos(pi step / iterations)) / 2."""
-    return lr_final + 0.5 * (lr - lr_final) * (1.0 + math.cos(math.pi * step / max(iterations, 1)))
-
-
-def learning_rate(step: int, iterations: int, lr: float, lr_final: float, warmup_steps: int = 0) -> float:
-    """The lr of 0-based ``step``: :func:`cosine_lr`, scaled by ``(step + 1) / warmup_steps`` for
-    ``step < warmup_steps`` (a linear warm-up)."""
-    scale = (step + 1) / warmup_steps if step < warmup_steps else 1.0
-    return scale * cosine_lr(step, iterations, lr, lr_final)
 
 
 #: A fit whose outputs on (up to this many) training inputs all lie within :data:`CONSTANT_PTP` of
@@ -275,7 +256,7 @@ def fit(method, samples, targets: dict, budget: str | Budget, seed: int = 0, dev
     where = f"(method '{method.name}', budget '{budget.name}', seed {seed})"
     result = run_steps(model, optimizer, T, step_loss, log_every=budget.log_every,
                        where=lambda i: f"iteration {i} of {T} {where}",
-                       learning_rate=lambda group, step: learning_rate(step, T, group["lr_start"], group["lr_end"], warmup),
+                       learning_rate=lambda group, step: warmup_cosine_lr(step, T, group["lr_start"], group["lr_end"], warmup),
                        progress=progress, checkpoints=checkpoints, on_checkpoint=on_checkpoint, device=device)
     check_not_constant(model, x_all, f"method '{method.name}', budget '{budget.name}', seed {seed}")
     return FitResult(model=model, losses=result.losses, seconds=result.seconds, iterations=T,

@@ -1,7 +1,7 @@
 """Evaluating a fitted network on the grid of :mod:`benchmark.grid`: dense, sparse, with input gradients.
 
 Everything is chunked (``chunk`` rows per forward pass: small chunks are faster on the CPU, see
-ENVIRONMENT.md) and returns numpy float32 arrays.
+docs/PERFORMANCE.md, "Measurements moved from docstrings") and returns numpy float32 arrays.
 
 Sparse coarse-to-fine strategy (the same for every method)
 ----------------------------------------------------------
@@ -44,7 +44,7 @@ from benchmark.grid import LOWER, edge_index_to_ijk_axis, edges_in_points, num_e
 from methods.core.device import flush_denormals, get_device, synchronize
 from methods.core.network import endpoint_split, value_and_input_gradients
 
-#: Rows per forward pass (ENVIRONMENT.md: 16k-65k chunks are much faster than 1M on the CPU).
+#: Rows per forward pass (small chunks are faster than large ones on the CPU: see the module docstring).
 DEFAULT_CHUNK = 32768
 #: Rows per forward + backward pass for input gradients.
 GRAD_CHUNK = 16_384

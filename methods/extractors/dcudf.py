@@ -58,8 +58,11 @@ from scipy.spatial import cKDTree
 
 from benchmark.grid import LOWER, spacing
 from benchmark.timing import stage
+from methods.core.schedules import warmup_then_cosine
+from methods.base import Extraction
 from methods.core.device import get_device
 from methods.extractors.marching_cubes import marching_cubes_grid
+from methods.extractors.mesh_ops import drop_unreferenced_vertices
 
 #: Largest side of the shape in the canonical frame over the authors' (1).
 FRAME_SCALE = 1.99
@@ -119,11 +122,7 @@ def learning_rate(it: int, iterations: int, lr: float) -> float:
     """The authors' schedule at iteration ``it`` of ``iterations``: a linear warm-up over the first
     25/400 of them (0 at the first), then a cosine from ``lr`` to 0, divided by 10 from iteration
     200/400 on (the three lengths in proportion to ``iterations``)."""
-    warm_up = max(1, int(round(iterations * AUTHORS_WARM_UP / AUTHORS_ITERATIONS)))
-    if it < warm_up:
-        factor = it / warm_up
-    else:
-        factor = 0.5 * (math.cos((it - warm_up) / max(iterations - warm_up, 1) * math.pi) + 1.0)
+    factor = warmup_then_cosine(it, iterations, max(1, int(round(iterations * AUTHORS_WARM_UP / AUTHORS_ITERATIONS))))
     if it >= iterations * AUTHORS_LR_DROP / AUTHORS_ITERATIONS:
         factor *= 0.1
     return lr * factor
@@ -156,10 +155,10 @@ def double_cover(udf_grid: np.ndarray, r: float, udf_at: Callable[[np.ndarray], 
     h = spacing(N)
     pad = int(math.ceil(r / h)) + 1 if udf_at is not None else 0
     grid = padded_udf_grid(udf_grid, udf_at, pad) if pad else np.asarray(udf_grid, dtype=np.float32)
-    V, F = marching_cubes_grid(grid, level=r)
+    cover = marching_cubes_grid(grid, level=r)
     M = grid.shape[0]
-    index = (V - LOWER) / spacing(M)  # marching_cubes_grid maps an M-point grid onto [-1, 1]
-    return LOWER + (index - pad) * h, F
+    index = (cover.vertices - LOWER) / spacing(M)  # marching_cubes_grid maps an M-point grid onto [-1, 1]
+    return LOWER + (index - pad) * h, cover.faces
 
 
 # ---------------------------------------------------------------------------------------------
@@ -437,13 +436,13 @@ def mesh_cut(V: np.ndarray, F: np.ndarray, rng: np.random.Generator, region_rate
     docstring, step 3). Seeds come from ``rng``. Returns (V, F) without unreferenced vertices and
     facts: ``small_faces_removed``, ``cut`` (1 when a cut was accepted, else the mesh without its small
     components is returned), ``cut_seeds`` (seeds tried)."""
-    F = np.asarray(F, dtype=np.int64)
+    V, F = np.asarray(V), np.asarray(F, dtype=np.int64)
     n_vertices = len(np.unique(F)) if len(F) else 0
     large = large_components(F, n_vertices // 5) if len(F) else np.zeros(0, dtype=bool)
     facts = {"small_faces_removed": int((~large).sum()), "cut": 0, "cut_seeds": 0}
     F = F[large]
     if len(F) < 2:
-        return (*_compact(V, F), facts)
+        return (*drop_unreferenced_vertices(V, F), facts)
     mesh = trimesh.Trimesh(V, F, process=False)
     pairs, angles = mesh.face_adjacency, mesh.face_adjacency_angles
     log_weights = np.logaddexp(angle_exponent * (angles.max() - angles), 0.0)  # log(exp(.) + 1)
@@ -462,9 +461,9 @@ def mesh_cut(V: np.ndarray, F: np.ndarray, rng: np.random.Generator, region_rate
         facts["cut_seeds"] = tries
         if why == "ok":
             facts["cut"] = 1
-            return (*_compact(V, _keep_one_sheet(F, seed_side, len(V))), facts)
+            return (*drop_unreferenced_vertices(V, _keep_one_sheet(F, seed_side, len(V))), facts)
         failures += why in ("unbalanced", "no sink")
-    return (*_compact(V, F), facts)
+    return (*drop_unreferenced_vertices(V, F), facts)
 
 
 def _keep_one_sheet(F: np.ndarray, seed_side: np.ndarray, n: int) -> np.ndarray:
@@ -477,34 +476,30 @@ def _keep_one_sheet(F: np.ndarray, seed_side: np.ndarray, n: int) -> np.ndarray:
     return F[larger] if count(larger) >= count(other) else F[other]
 
 
-def _compact(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(V, F) without the vertices no face uses."""
-    used = np.unique(F)
-    remap = np.full(len(V), -1, dtype=np.int64)
-    remap[used] = np.arange(len(used))
-    return np.asarray(V)[used], remap[F].reshape(-1, 3)
-
-
 # ---------------------------------------------------------------------------------------------
 # all steps
 # ---------------------------------------------------------------------------------------------
-def dcudf_extract(udf_grid: np.ndarray, udf_and_grad: UDFAndGrad, udf_at: Callable[[np.ndarray], np.ndarray],
-                  r: float, iterations: int = AUTHORS_ITERATIONS, normal_step: int | None = None,
-                  laplacian_weight: float | None = None, cut: bool = True, region_rate: float = REGION_RATE,
-                  seed: int = 0, device=None) -> tuple[np.ndarray, np.ndarray, dict]:
-    """DCUDF on the grid UDF (N, N, N): the double cover at ``r`` (canonical units), ``iterations`` of
-    the vertex optimisation on ``udf_and_grad`` (numpy: points -> (d, gradient)), then, with ``cut``,
-    the min-cut (seeds from ``numpy.random.default_rng(seed)``). ``laplacian_weight`` defaults to
-    :func:`authors_laplacian_weight` (N); ``udf_at`` pads the grid (:func:`double_cover`). The
-    sub-steps are timed as the stages ``double_cover``, ``optimise`` and ``cut``
-    (:func:`benchmark.timing.stage`). Returns (V, F, facts)."""
+def dcudf(udf_grid: np.ndarray, udf_and_grad: UDFAndGrad, udf_at: Callable[[np.ndarray], np.ndarray],
+          r: float, iterations: int = AUTHORS_ITERATIONS, normal_step: int | None = None,
+          laplacian_weight: float | None = None, cut: bool = True, region_rate: float = REGION_RATE,
+          seed: int = 0, device=None) -> Extraction:
+    """DCUDF on the grid UDF (N, N, N), canonical units: the double cover at ``r`` (canonical units),
+    ``iterations`` of the vertex optimisation on ``udf_and_grad`` (numpy: points -> (d, gradient)),
+    then, with ``cut``, the min-cut (seeds from ``numpy.random.default_rng(seed)``).
+    ``laplacian_weight`` defaults to :func:`authors_laplacian_weight` (N); ``udf_at`` pads the grid
+    (:func:`double_cover`). The sub-steps are timed as the stages ``double_cover``, ``optimise`` and
+    ``cut`` (:mod:`benchmark.timing`).
+
+    Returns :class:`methods.base.Extraction`: vertices (n, 3) float64, canonical frame; faces (m, 3)
+    int64, unoriented; info ``r``, ``iterations``, ``cover_faces`` (faces of the double cover),
+    ``cut`` and, when the cut ran, the facts of :func:`mesh_cut`, then ``faces``."""
     N = udf_grid.shape[0]
     laplacian_weight = authors_laplacian_weight(N) if laplacian_weight is None else laplacian_weight
     with stage("double_cover"):
         V, F = double_cover(udf_grid, r, udf_at)
     facts = {"r": float(r), "iterations": int(iterations), "cover_faces": int(len(F))}
     if len(F) == 0:
-        return V, F, {**facts, "faces": 0, "cut": 0}
+        return Extraction(V, F, {**facts, "faces": 0, "cut": 0})
     with stage("optimise"):
         V = optimise_vertices(V, F, field_udf(udf_and_grad), iterations, normal_step, laplacian_weight, device=device)
     if cut:
@@ -513,5 +508,4 @@ def dcudf_extract(udf_grid: np.ndarray, udf_and_grad: UDFAndGrad, udf_at: Callab
         facts.update(cut_facts)
     else:
         facts["cut"] = 0
-    return V, F, {**facts, "faces": int(len(F))}
-
+    return Extraction(V, F, {**facts, "faces": int(len(F))})

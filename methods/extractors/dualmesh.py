@@ -42,6 +42,9 @@ from typing import Callable
 import numpy as np
 
 from benchmark.grid import LOWER, spacing
+from benchmark.timing import stage
+from methods.base import Extraction
+from methods.extractors.mesh_ops import drop_unreferenced_vertices
 
 #: d of a reliable sample, of a valid projection, and the leaf test's margin (canonical units).
 RELIABLE_UDF = 0.002
@@ -302,8 +305,9 @@ def triangulate(vertices, kinds, directions, quad_ids) -> np.ndarray:
     return tris[keep].reshape(-1, 3)
 
 
-def dualmesh_extract(udf_grid: np.ndarray, udf_grad_at, udf_at):
-    """DualMesh-UDF on the grid of :mod:`benchmark.grid`.
+def dualmesh_udf(udf_grid: np.ndarray, udf_grad_at, udf_at) -> Extraction:
+    """DualMesh-UDF on the grid of :mod:`benchmark.grid`, timed as the stage ``dualmesh``
+    (:mod:`benchmark.timing`).
 
     Parameters
     ----------
@@ -314,16 +318,22 @@ def dualmesh_extract(udf_grid: np.ndarray, udf_grad_at, udf_at):
 
     Returns
     -------
-    vertices (V, 3) float64 canonical frame, faces (F, 3) int64 (unoriented), and facts: leaves,
-    dual vertices per type, quads, repeated triangles.
+    :class:`methods.base.Extraction`: vertices (n, 3) float64, canonical frame; faces (m, 3) int64,
+    unoriented; info: ``leaves``, ``dual_vertices``, ``corner_vertices``, ``edge_vertices``,
+    ``quads`` and, when a face is left, ``repeated_faces``.
     """
+    with stage("dualmesh"):
+        return _dualmesh_udf(udf_grid, udf_grad_at, udf_at)
+
+
+def _dualmesh_udf(udf_grid, udf_grad_at, udf_at) -> Extraction:
     import igl
 
     N = udf_grid.shape[0]
     cells = leaf_cells(np.asarray(udf_grid), udf_at)
     empty = (np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
     if len(cells) == 0:
-        return (*empty, {"leaves": 0, "dual_vertices": 0, "quads": 0})
+        return Extraction(*empty, {"leaves": 0, "dual_vertices": 0, "quads": 0})
     has_vertex, vertices, kinds, directions = dual_vertices(cells, N, udf_grad_at, udf_at)
     quad_ids = quads(cells, has_vertex, N)
     faces = triangulate(vertices, kinds, directions, quad_ids)
@@ -339,7 +349,7 @@ def dualmesh_extract(udf_grid: np.ndarray, udf_grad_at, udf_at):
              "edge_vertices": int((has_vertex & (kinds == EDGE)).sum()),
              "quads": int(len(quad_ids))}
     if len(faces) == 0:
-        return (*empty, facts)
+        return Extraction(*empty, facts)
     V, _, _, F = igl.remove_duplicate_vertices(vertices, faces.astype(np.int64), 1e-7)
     # two layers of leaves can place the same vertices and so the same triangles twice; a triangle
     # whose merged corners repeat has no area: the surface is the set of the others, once each
@@ -347,5 +357,5 @@ def dualmesh_extract(udf_grid: np.ndarray, udf_grad_at, udf_at):
     F = F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 2] != F[:, 0])]
     _, first = np.unique(np.sort(F, axis=1), axis=0, return_index=True)
     facts["repeated_faces"] = int(len(F) - len(first))
-    V, F, _, _ = igl.remove_unreferenced(V, F[np.sort(first)])
-    return np.asarray(V, dtype=np.float64), np.asarray(F, dtype=np.int64), facts
+    V, F = drop_unreferenced_vertices(np.asarray(V, dtype=np.float64), F[np.sort(first)])
+    return Extraction(V, F, facts)

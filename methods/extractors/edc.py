@@ -26,9 +26,9 @@ normals by autograd, belong to the caller):
    the 4 surrounding cells in cyclic order; ``'quad2'`` adds 2 triangles over the 4 cell vertices;
    ``'fan4-adaptive'`` keeps the fan where the edge point lies on the plane of the 4 cell vertices
    (within :data:`FAN_PLANE_TOLERANCE` h) and elsewhere adds 2 triangles split along the flatter
-   diagonal (see :func:`edc_extract`). Every one of these cells has a vertex (this very edge is one
-   of its intersected edges). All three rules work per intersected edge on the same ring of 4
-   cells, so they have the same mesh edges between cell vertices: the same boundary and
+   diagonal (see :func:`edge_dual_contouring`). Every one of these cells has a vertex (this very
+   edge is one of its intersected edges). All three rules work per intersected edge on the same
+   ring of 4 cells, so they have the same mesh edges between cell vertices: the same boundary and
    non-manifold edges (open and non-manifold surfaces survive alike).
 
 Everything is batched: per-cell sums with ``np.bincount``, the 3x3 pseudo-inverses in closed form
@@ -38,15 +38,15 @@ Cell ``(i, j, k)`` has flat id ``(i (N-1) + j) (N-1) + k``.
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
-from benchmark.grid import EdgeField, LOWER, edge_index_to_ijk_axis, num_edges, spacing
+from benchmark.grid import LOWER, edge_index_to_ijk_axis, num_edges, spacing
+from benchmark.timing import record, stage
+from methods.base import Extraction
+from methods.extractors.mesh_ops import drop_unreferenced_vertices
 
 __all__ = [
-    "edc_extract",
-    "edc_from_edge_field",
+    "edge_dual_contouring",
     "edc_cell_vertices",
     "edge_points",
     "intersected_edges",
@@ -61,7 +61,7 @@ __all__ = [
 DEFAULT_QEF_CUTOFF = 0.1
 #: An edge is intersected when the predicted occupancy o_hat exceeds this (*paper*).
 DEFAULT_HIT_THRESHOLD = 0.1
-#: The face rules of :func:`edc_extract` (``'fan4'`` is the paper's).
+#: The face rules of :func:`edge_dual_contouring` (``'fan4'`` is the paper's).
 FACE_RULES = ("fan4", "quad2", "fan4-adaptive")
 #: ``'fan4-adaptive'`` keeps the fan of an edge when its edge point lies within this many grid
 #: spacings h of the plane of its 4 cell vertices (the choice: docs/PROTOCOL.md, "E-DC face rules").
@@ -337,8 +337,9 @@ def edc_cell_vertices(N: int, edge_ids: np.ndarray, s: np.ndarray, normals: np.n
     return cells, verts
 
 
-def edc_extract(N: int, edge_ids: np.ndarray, s: np.ndarray, normals: np.ndarray | None = None, *,
-                qef_cutoff: float = DEFAULT_QEF_CUTOFF, clamp_to_cell: bool = False, faces: str = "fan4"):
+def edge_dual_contouring(N: int, edge_ids: np.ndarray, s: np.ndarray, normals: np.ndarray | None = None, *,
+                         qef_cutoff: float = DEFAULT_QEF_CUTOFF, clamp_to_cell: bool = False,
+                         faces: str = "fan4") -> Extraction:
     """E-DC mesh from the intersected edges of the N^3 grid (steps 2, 4 and 5).
 
     Parameters
@@ -359,8 +360,8 @@ def edc_extract(N: int, edge_ids: np.ndarray, s: np.ndarray, normals: np.ndarray
     the cell's vertex between the sheets, so the 4 vertices around an edge are coplanar on a middle
     plane while the edge point lies on one sheet, off that plane. The ``'fan4'`` fan around it is a
     tent; neighbouring tents lean opposite ways, and NDC's sharp-edge test flags them all over the
-    wall. The cause is where the fan's centre lies, not the QEF options (the measurements:
-    docs/PROTOCOL.md, "E-DC face rules").
+    wall. The cause is where the fan's centre lies, not the QEF options (docs/PROTOCOL.md, "E-DC
+    face rules").
 
     ``'fan4-adaptive'``: the fan where the edge point lies within :data:`FAN_PLANE_TOLERANCE` h of
     the plane of its 4 cell vertices (the plane through their mean, normal to the quad's vector
@@ -370,30 +371,35 @@ def edc_extract(N: int, edge_ids: np.ndarray, s: np.ndarray, normals: np.ndarray
 
     Returns
     -------
-    vertices : (n, 3) float64, canonical frame; cell vertices first (increasing cell id), then
-        (fan4) the edge points of the interior intersected edges in input order (fan4-adaptive:
-        those of its fan edges). Unreferenced cell vertices (cells touched only by boundary edges)
-        are removed.
-    faces : (m, 3) int64, unoriented: 4 per interior intersected edge (fan4) or 2 (quad2);
-        fan4-adaptive: 4 per fan edge (input order), then 2 per split edge (input order).
-    timings : dict of seconds for the stages ``'edge_points'``, ``'qef'``, ``'faces'``.
+    :class:`methods.base.Extraction`: vertices (n, 3) float64, canonical frame; cell vertices first
+    (increasing cell id), then (fan4) the edge points of the interior intersected edges in input
+    order (fan4-adaptive: those of its fan edges); cell vertices no face uses (cells touched only by
+    boundary edges) are removed. Faces (m, 3) int64, unoriented: 4 per interior intersected edge
+    (fan4) or 2 (quad2); fan4-adaptive: 4 per fan edge (input order), then 2 per split edge (input
+    order). Info: ``intersected_edges`` (K). The steps are timed as the stages ``edge_points``,
+    ``qef`` and ``faces`` (:mod:`benchmark.timing`).
     """
     if faces not in FACE_RULES:
         raise ValueError(f"faces must be one of {', '.join(map(repr, FACE_RULES))}, got {faces!r}")
-    timings = {}
-    t0 = time.perf_counter()
-    edge_ids, s, normals = _check_inputs(N, edge_ids, s, normals)
-    dec = _Decoded(N, edge_ids, s)
-    t1 = time.perf_counter()
-    timings["edge_points"] = t1 - t0
+    with stage("edge_points"):
+        edge_ids, s, normals = _check_inputs(N, edge_ids, s, normals)
+        dec = _Decoded(N, edge_ids, s)
+    info = {"intersected_edges": int(len(edge_ids))}
     if len(edge_ids) == 0:
-        timings["qef"] = timings["faces"] = 0.0
-        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), timings
-    cells, cell_verts, rows = _cell_vertices(dec, normals, qef_cutoff, clamp_to_cell)
-    t2 = time.perf_counter()
-    timings["qef"] = t2 - t1
+        record("qef", 0.0)
+        record("faces", 0.0)
+        return Extraction(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), info)
+    with stage("qef"):
+        _, cell_verts, rows = _cell_vertices(dec, normals, qef_cutoff, clamp_to_cell)
+    with stage("faces"):
+        verts, tri = _faces(dec, cell_verts, rows, faces)
+    return Extraction(verts, tri, info)
 
-    C = len(cells)
+
+def _faces(dec: _Decoded, cell_verts: np.ndarray, rows: np.ndarray, rule: str) -> tuple[np.ndarray, np.ndarray]:
+    """Step 5: (vertices, faces) of the face rule ``rule`` over the interior intersected edges,
+    without the cell vertices no face uses (see :func:`edge_dual_contouring`)."""
+    C = len(cell_verts)
     interior_mask = (rows < C).all(axis=0)
     all_interior = bool(interior_mask.all())
     if all_interior:
@@ -402,29 +408,21 @@ def edc_extract(N: int, edge_ids: np.ndarray, s: np.ndarray, normals: np.ndarray
         interior = np.flatnonzero(interior_mask)
         ring = rows[:, interior].T
     points = dec.points if all_interior else dec.points[interior]
-    if faces == "fan4":
+    if rule == "fan4":
         tri = _fan_faces(ring, C)
         verts = np.concatenate([cell_verts, points], axis=0)
-    elif faces == "quad2":
+    elif rule == "quad2":
         tri = _quad_faces(ring)
         verts = cell_verts
     else:
-        is_fan, flip = _adaptive_split(cell_verts[ring], points, spacing(N))
+        is_fan, flip = _adaptive_split(cell_verts[ring], points, spacing(dec.N))
         fan_rows = np.flatnonzero(is_fan)
         split = ~is_fan
         split_ring = ring[split]
         split_ring = np.where(flip[split][:, None], split_ring[:, [1, 2, 3, 0]], split_ring)
         tri = np.concatenate([_fan_faces(ring[fan_rows], C), _quad_faces(split_ring)], axis=0)
         verts = np.concatenate([cell_verts, points[fan_rows]], axis=0)
-    # drop unreferenced vertices (only cell vertices can be unreferenced)
-    used = np.zeros(C, dtype=bool)
-    used[ring.ravel()] = True
-    if not used.all():
-        new_index = np.concatenate([np.cumsum(used) - 1, np.arange(len(verts) - C) + int(used.sum())])
-        verts = np.concatenate([cell_verts[used], verts[C:]], axis=0)
-        tri = new_index[tri]
-    timings["faces"] = time.perf_counter() - t2
-    return verts, tri, timings
+    return drop_unreferenced_vertices(verts, tri)
 
 
 def _fan_faces(ring: np.ndarray, first: int) -> np.ndarray:
@@ -470,14 +468,3 @@ def _adaptive_split(quads: np.ndarray, points: np.ndarray, h: float):
     cos02 = _abs_cos(np.cross(q1 - q0, d02), np.cross(d02, q3 - q0))
     cos13 = _abs_cos(np.cross(q2 - q1, d13), np.cross(d13, q0 - q1))
     return is_fan, cos13 > cos02
-
-
-def edc_from_edge_field(field: EdgeField, *, use_normals: bool = True, **options):
-    """E-DC on an exact (oracle) :class:`benchmark.grid.EdgeField`: intersected edges are ``field.hit``.
-
-    ``use_normals=False`` runs the 'no normals' ablation (mass-point vertices). Other keyword
-    options go to :func:`edc_extract`. Returns ``(vertices, faces, timings)``.
-    """
-    ids = np.flatnonzero(field.hit)
-    normals = field.normal[ids] if use_normals else None
-    return edc_extract(field.N, ids, field.s[ids], normals, **options)

@@ -21,6 +21,7 @@ from scipy import ndimage
 from skimage.measure import marching_cubes as _skimage_marching_cubes
 
 from benchmark.grid import index_to_world
+from methods.base import Extraction
 
 __all__ = ["marching_cubes_grid", "empty_mesh"]
 
@@ -30,7 +31,7 @@ def empty_mesh() -> tuple[np.ndarray, np.ndarray]:
     return np.zeros((0, 3), dtype=np.float64), np.zeros((0, 3), dtype=np.int64)
 
 
-def marching_cubes_grid(volume: np.ndarray, level: float = 0.0, inside: str = "low"):
+def marching_cubes_grid(volume: np.ndarray, level: float = 0.0, inside: str = "low") -> Extraction:
     """Extract the ``level`` isosurface of a grid field, faces oriented outward.
 
     Parameters
@@ -44,10 +45,10 @@ def marching_cubes_grid(volume: np.ndarray, level: float = 0.0, inside: str = "l
 
     Returns
     -------
-    vertices : (n, 3) float64, canonical frame.
-    faces : (m, 3) int64, oriented so normals point away from the inside.
-        A volume that never crosses ``level`` (all values on one side, or constant) gives an
-        empty mesh (0 vertices, 0 faces) instead of an exception.
+    :class:`methods.base.Extraction`: vertices (n, 3) float64 in the canonical frame, faces (m, 3)
+    int64 oriented so normals point away from the inside. A volume that never crosses ``level``
+    (all values on one side, or constant) gives an empty mesh (0 vertices, 0 faces) instead of an
+    exception.
     """
     if inside not in ("low", "high"):
         raise ValueError(f"inside must be 'low' or 'high', got {inside!r}")
@@ -63,17 +64,17 @@ def marching_cubes_grid(volume: np.ndarray, level: float = 0.0, inside: str = "l
     level = float(level)
     vmin, vmax = float(volume.min()), float(volume.max())
     if not (vmin <= level <= vmax) or vmin == vmax:
-        return empty_mesh()
+        return Extraction(*empty_mesh())
     try:
         verts, faces, _, _ = _skimage_marching_cubes(volume, level=level)
     except (ValueError, RuntimeError):
         # e.g. a level equal to the minimum or maximum that produces no triangle
-        return empty_mesh()
+        return Extraction(*empty_mesh())
     verts = index_to_world(verts, volume.shape[0])
     faces = np.ascontiguousarray(faces, dtype=np.int64)
     if inside == "high":
         faces = faces[:, ::-1].copy()
-    return verts, faces
+    return Extraction(verts, faces)
 
 
 def far_occupancy(known: np.ndarray) -> np.ndarray:

@@ -12,9 +12,10 @@ triangle mesh in the canonical frame [-1, 1]^3 (it may have small holes).
    disagree (``|g_i . g_A| > 0.5``); where they are nearly orthogonal (the two faces of a sharp
    edge, where the anchor rule cuts holes), the corner takes its side of the anchor's tangent
    plane through the anchor's closest surface point ``q_A = x_A - d_A g_A``:
-   ``sign(g_A . (x_i - q_A)) = sign(d_A + g_A . (x_i - x_A))``. On an analytic cube UDF at
-   N = 40 the anchor rule leaves 400 boundary edges and 87% of the area, the hybrid rule a closed
-   mesh with 97% (the rest is marching cubes' chamfer at the edges).
+   ``sign(g_A . (x_i - q_A)) = sign(d_A + g_A . (x_i - x_A))``. On an analytic cube UDF the
+   anchor rule leaves holes along the cube's edges, the hybrid rule a closed mesh short of the
+   cube's area only by marching cubes' chamfer at the edges (docs/PERFORMANCE.md, "Measurements
+   moved from docstrings").
 3. Each candidate cube is triangulated with the marching-cubes case table (256 sign cases -> up to
    5 triangles over the 12 cube edges) at level 0 of ``sign * d``, all cubes at once in numpy. A
    crossing on the cube edge between corners 0 and 1 (signed values ``f0 < 0 <= f1`` or the
@@ -35,14 +36,16 @@ The case table is generated once from scikit-image's classic (Lorensen) marching
 from __future__ import annotations
 
 import functools
-import time
 from typing import Callable
 
 import numpy as np
 
 from benchmark.grid import LOWER, ijk_axis_to_edge_index, num_edges, spacing
+from benchmark.timing import record, stage
+from methods.base import Extraction
+from methods.extractors.mesh_ops import drop_unreferenced_vertices
 
-__all__ = ["meshudf_extract", "candidate_cubes", "mc_case_table", "CUBE_CORNERS", "CUBE_EDGES"]
+__all__ = ["meshudf_marching_cubes", "candidate_cubes", "mc_case_table", "CUBE_CORNERS", "CUBE_EDGES"]
 
 #: Corner c of a cube sits at offset (c & 1, (c >> 1) & 1, (c >> 2) & 1) in index units.
 CUBE_CORNERS = np.array([[c & 1, (c >> 1) & 1, (c >> 2) & 1] for c in range(8)], dtype=np.int64)
@@ -135,14 +138,16 @@ def _pseudo_signs(D, G, rule, h):
 _CONFIDENT_DOT = 0.5
 
 
-def meshudf_extract(udf: np.ndarray, grad: np.ndarray, *, udf_at: Callable[[np.ndarray], np.ndarray] | None = None,
-                    mean_factor: float = 1.05, max_factor: float = 1.74, face_factor: float = 1.0 / 6.0,
-                    sign_rule: str = "hybrid"):
+def meshudf_marching_cubes(udf: np.ndarray, grad: np.ndarray, *,
+                           udf_at: Callable[[np.ndarray], np.ndarray] | None = None, mean_factor: float = 1.05,
+                           max_factor: float = 1.74, face_factor: float = 1.0 / 6.0,
+                           sign_rule: str = "hybrid") -> Extraction:
     """MeshUDF-style mesh of the zero set of a UDF sampled on the grid (see module docstring).
 
     Parameters
     ----------
-    udf : (N, N, N) unsigned distances d >= 0 on the grid (NaN = unknown, treated as far).
+    udf : (N, N, N) unsigned distances d >= 0 on the grid, canonical units (NaN = unknown, treated
+        as far).
     grad : (N, N, N, 3) unit gradients of d on the grid (needed only where d < 2h; NaN -> 0).
     udf_at : optional callable mapping canonical points (n, 3) float64 to their UDF (n,), used for
         the face filter (the network or the exact field); default: first-order estimate.
@@ -153,8 +158,9 @@ def meshudf_extract(udf: np.ndarray, grad: np.ndarray, *, udf_at: Callable[[np.n
 
     Returns
     -------
-    vertices : (n, 3) float64 canonical frame; faces : (m, 3) int64, unoriented;
-    timings : dict of seconds for ``'candidates'``, ``'pseudo_signs'``, ``'triangulation'``, ``'filter'``.
+    :class:`methods.base.Extraction`: vertices (n, 3) float64, canonical frame; faces (m, 3) int64,
+    unoriented; no info. The steps are timed as the stages ``candidates``, ``pseudo_signs``,
+    ``triangulation`` and ``filter`` (:mod:`benchmark.timing`).
     """
     udf = np.asarray(udf)
     grad = np.asarray(grad)
@@ -166,36 +172,52 @@ def meshudf_extract(udf: np.ndarray, grad: np.ndarray, *, udf_at: Callable[[np.n
     if sign_rule not in ("anchor", "hybrid"):
         raise ValueError(f"sign_rule must be 'anchor' or 'hybrid', got {sign_rule!r}")
     h = spacing(N)
-    timings = {}
-    t0 = time.perf_counter()
-    ijk = candidate_cubes(udf, mean_factor, max_factor)  # NaN corners are never candidates
-    corner_ids = _corner_ids(N, ijk)
-    D = udf.reshape(-1)[corner_ids].astype(np.float64, copy=False)  # (C, 8)
-    flat_grad = grad.reshape(-1)
-    G = np.empty((3,) + corner_ids.shape)  # (3, C, 8) corner gradients, component-major
-    for a in range(3):
-        G[a] = flat_grad[corner_ids * 3 + a]
-    np.nan_to_num(G, copy=False)
-    t1 = time.perf_counter()
-    timings["candidates"] = t1 - t0
+    with stage("candidates"):
+        ijk = candidate_cubes(udf, mean_factor, max_factor)  # NaN corners are never candidates
+        corner_ids = _corner_ids(N, ijk)
+        D = udf.reshape(-1)[corner_ids].astype(np.float64, copy=False)  # (C, 8)
+        flat_grad = grad.reshape(-1)
+        G = np.empty((3,) + corner_ids.shape)  # (3, C, 8) corner gradients, component-major
+        for a in range(3):
+            G[a] = flat_grad[corner_ids * 3 + a]
+        np.nan_to_num(G, copy=False)
 
-    S = _pseudo_signs(D, G, sign_rule, h) if len(D) else np.zeros((0, 8))
-    F = S * D  # pseudo-signed distances
-    negative = F < 0
-    case = np.packbits(negative, axis=1, bitorder="little")[:, 0].astype(np.int64)
-    t2 = time.perf_counter()
-    timings["pseudo_signs"] = t2 - t1
+    with stage("pseudo_signs"):
+        S = _pseudo_signs(D, G, sign_rule, h) if len(D) else np.zeros((0, 8))
+        F = S * D  # pseudo-signed distances
+        negative = F < 0
+        case = np.packbits(negative, axis=1, bitorder="little")[:, 0].astype(np.int64)
 
+    with stage("triangulation"):
+        active = np.flatnonzero(mc_case_table()[1][case])
+        if len(active):
+            verts, faces, crossings = _triangulate(N, ijk[active], F[active], negative[active], case[active])
+    if len(active) == 0:
+        record("filter", 0.0)
+        return Extraction(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
+
+    with stage("filter"):
+        if udf_at is not None:
+            vd = np.asarray(udf_at(verts), dtype=np.float64).reshape(-1)
+            if vd.shape != (len(verts),):
+                raise ValueError(f"udf_at returned shape {vd.shape} for {len(verts)} points")
+        else:
+            vd = _first_order_udf(len(verts), crossings, D[active], G[:, active], h)
+        keep = vd[faces].max(axis=1) < face_factor * h
+        keep &= (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
+        verts, faces = drop_unreferenced_vertices(verts, faces[keep])
+    return Extraction(verts, faces)
+
+
+def _triangulate(N: int, ijk: np.ndarray, F: np.ndarray, negative: np.ndarray, case: np.ndarray):
+    """Step 3 on the cubes ``ijk`` (C, 3) with a triangle: pseudo-signed corner distances ``F`` (C, 8),
+    their signs ``negative`` and sign cases ``case`` (C,).
+
+    Returns (vertices (n, 3) canonical frame, merged by grid edge or grid point; faces (T, 3);
+    crossings (vertex id, cube, lower corner, upper corner, axis, t) per cube-edge crossing)."""
+    h = spacing(N)
     table, counts = mc_case_table()
     ntri = counts[case]
-    active = np.flatnonzero(ntri)
-    if len(active) == 0:
-        timings["triangulation"] = time.perf_counter() - t2
-        timings["filter"] = 0.0
-        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), timings
-    ijk, corner_ids, D, F, negative, case, ntri = (
-        x[active] for x in (ijk, corner_ids, D, F, negative, case, ntri))
-    G = G[:, active]
     C = len(ijk)
     # crossings: cube edges whose corners have opposite pseudo-signs
     cc, ee = np.nonzero(negative[:, CUBE_EDGES[:, 0]] != negative[:, CUBE_EDGES[:, 1]])
@@ -227,28 +249,18 @@ def meshudf_extract(udf: np.ndarray, grad: np.ndarray, *, udf_at: Callable[[np.n
     cube = np.repeat(np.arange(C), ntri)
     slot = np.arange(len(cube)) - np.repeat(np.cumsum(ntri) - ntri, ntri)
     faces = vid_of[cube[:, None], table[case[cube], slot]]  # (T, 3)
-    t3 = time.perf_counter()
-    timings["triangulation"] = t3 - t2
+    return verts, faces, (vid, cc, c0, c1, axis, t)
 
-    if udf_at is not None:
-        vd = np.asarray(udf_at(verts), dtype=np.float64).reshape(-1)
-        if vd.shape != (len(verts),):
-            raise ValueError(f"udf_at returned shape {vd.shape} for {len(verts)} points")
-    else:
-        # first-order estimates from both endpoints, d_i + g_i . (p - x_i) with p - x_i along the
-        # edge; the smaller in magnitude (the endpoint whose linear model still holds at p)
-        step = t * h
-        est0 = np.abs(D[cc, c0] + G[axis, cc, c0] * step)
-        est1 = np.abs(D[cc, c1] - G[axis, cc, c1] * (h - step))
-        vd = np.empty(len(verts))
-        vd[vid] = np.minimum(est0, est1)
-    keep = vd[faces].max(axis=1) < face_factor * h
-    keep &= (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
-    faces = faces[keep]
-    used = np.zeros(len(verts), dtype=bool)
-    used[faces.reshape(-1)] = True
-    new_index = np.cumsum(used) - 1
-    verts, faces = verts[used], new_index[faces]
-    timings["filter"] = time.perf_counter() - t3
-    return verts, faces, timings
 
+def _first_order_udf(n: int, crossings, D: np.ndarray, G: np.ndarray, h: float) -> np.ndarray:
+    """(n,) UDF estimates at the vertices: from both endpoints of each crossing's cube edge,
+    ``d_i + g_i . (p - x_i)`` with ``p - x_i`` along the edge; the smaller in magnitude (the endpoint
+    whose linear model still holds at p). ``D`` (C, 8) and ``G`` (3, C, 8): the corner distances and
+    gradients of the cubes of :func:`_triangulate`."""
+    vid, cc, c0, c1, axis, t = crossings
+    step = t * h
+    est0 = np.abs(D[cc, c0] + G[axis, cc, c0] * step)
+    est1 = np.abs(D[cc, c1] - G[axis, cc, c1] * (h - step))
+    vd = np.empty(n)
+    vd[vid] = np.minimum(est0, est1)
+    return vd

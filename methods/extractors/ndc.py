@@ -3,13 +3,13 @@
 NDC places one vertex in every grid cell whose corners do not all have the same sign and connects
 them by dual contouring; a 3D CNN predicts each vertex's position inside its cell from the SDF
 around it. For SDF input the intersection flags are not predicted: they are the signs of the SDF
-(inside = ``sdf < 0``). This module is two functions and the network:
+(inside = ``sdf < 0``). :func:`neural_dual_contouring` is the extractor (SDF grid in canonical
+units to mesh); it runs the two steps:
 
 * :func:`ndc_vertex_offsets`: NDC's CNN ``CNN_3d_rec7_resnet`` (three unpadded 3x3x3 convolutions,
   eight residual blocks of 1x1x1 convolutions, leaky ReLU 0.01) evaluated *sparsely*: only at the
   cells that get a vertex and at the cells their receptive field (7^3 grid points) needs. A dense
-  ``conv3d`` over the whole grid gives the same values; at 128^3 it would spend ~1.3 TFLOP mostly
-  on empty space.
+  ``conv3d`` over the whole grid gives the same values and spends most of its work on empty space.
 * :func:`dual_contour_signs`: NDC's dual contouring of a sign grid with per-cell vertex offsets,
   vectorised (NDC's ``dual_contouring_ndc_test``): the same vertices in the same order and the same
   triangles, which point outward.
@@ -19,8 +19,8 @@ padded by 3 points on each side with +-10 (the sign of the grid's corner point [
 clipped to [-2, 2]. Output offsets are clipped to [0, 1] (cell units).
 
 The weights are data: ``network_float.pth`` of NDC's repository (MIT), found at
-``$SALSBENCH_NDC_WEIGHTS`` or ``../shared/data/weights/ndc/network_float.pth`` beside the checkout,
-and checked against their published SHA-256 before use.
+``$SALSBENCH_NDC_WEIGHTS`` or :data:`DEFAULT_WEIGHTS`, and checked against their published SHA-256
+before use.
 """
 
 from __future__ import annotations
@@ -36,11 +36,15 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from benchmark.grid import index_to_world, spacing
+from benchmark.timing import stage
+from methods.base import Extraction
 from methods.core.weights import WeightsError
 
 #: Environment variable naming the weights file.
 WEIGHTS_ENV = "SALSBENCH_NDC_WEIGHTS"
-#: Where the weights are found without the variable: the shared data beside the checkout.
+#: Where the weights are found without the variable: ``shared/data/weights/ndc/`` in the directory
+#: that holds the checkout.
 DEFAULT_WEIGHTS = Path(__file__).resolve().parents[3] / "shared" / "data" / "weights" / "ndc" / "network_float.pth"
 #: SHA-256 of NDC's published SDF-input network (github.com/czq142857/NDC, ``network_float.pth``).
 WEIGHTS_SHA256 = "935d1bb16fb7c2bbbb68e2c3f521001aae1cbeff4cf0fc01984f414cfe4a247e"
@@ -238,3 +242,30 @@ def dual_contour_signs(inside: np.ndarray, offsets: np.ndarray, cells: np.ndarra
     faces = np.concatenate(faces)
     vertices = cells.astype(np.float64) + np.asarray(offsets, dtype=np.float64)
     return vertices, np.ascontiguousarray(faces, dtype=np.int64)
+
+
+def neural_dual_contouring(sdf: np.ndarray, state: dict | None = None) -> Extraction:
+    """NDC on an SDF sampled on the grid of :mod:`benchmark.grid`.
+
+    Parameters
+    ----------
+    sdf : (N, N, N) signed distance on the grid points, canonical units (negative inside).
+    state : NDC's state dict (default: :func:`load_weights`).
+
+    Returns
+    -------
+    :class:`methods.base.Extraction`: vertices (M, 3) float64, canonical frame, one per active
+    cell (:func:`active_cells`); faces (F, 3) int64, oriented outward (:func:`dual_contour_signs`);
+    info ``ndc_cells`` (M). The network and the dual contouring are timed as the stages
+    ``ndc_network`` and ``dual_contouring`` (:mod:`benchmark.timing`).
+    """
+    sdf = np.asarray(sdf, dtype=np.float32)
+    N = sdf.shape[0]
+    sdf_voxels = sdf / np.float32(spacing(N))
+    inside = sdf_voxels < 0
+    cells = active_cells(inside)
+    with stage("ndc_network"):
+        offsets = ndc_vertex_offsets(sdf_voxels, cells, state)
+    with stage("dual_contouring"):
+        vertices, faces = dual_contour_signs(inside, offsets, cells)
+    return Extraction(index_to_world(vertices, N), faces, {"ndc_cells": int(len(cells))})

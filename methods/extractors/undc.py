@@ -18,7 +18,8 @@ This module holds the network, the ground truth of a shape on a grid (:func:`gro
 labels of NDC's ``get_gt_LOD.py`` for UNDC from our exact grid-line intersections), the dual
 contouring of edge flags and cell vertices (:func:`dual_contour_edges`, NDC's
 ``dual_contouring_undc_test`` vectorised), the sparse inference of both networks
-(:func:`undc_predict`) and the weights file (:func:`save_weights`, :func:`load_weights`). The
+(:func:`undc_predict`, in voxel and grid index units), the extractor on a grid UDF in canonical
+units (:func:`unsigned_neural_dual_contouring`) and the weights file (:func:`save_weights`, :func:`load_weights`). The
 training recipe is :mod:`methods.training.undc`, the registered method ``udf-ndc``
 :mod:`methods.fields.udf_ndc`.
 """
@@ -37,9 +38,11 @@ import torch.nn.functional as F
 from torch import nn
 
 from benchmark.fields import default_band
-from benchmark.grid import spacing
-from benchmark.storage import CorruptEntry, read_checked, write_checked
+from benchmark.grid import index_to_world, spacing
 from benchmark.raster import grid_line_hits
+from benchmark.storage import CorruptEntry, read_checked, write_checked
+from benchmark.timing import stage
+from methods.base import Extraction
 from methods.core.weights import WeightsError
 from methods.extractors.ndc import KERNEL_OFFSETS, leaky, pointwise_conv, receptive_positions, sparse_conv3
 
@@ -459,6 +462,29 @@ def undc_predict(bool_network: UNDCNetwork, float_network: UNDCNetwork, udf_voxe
     offsets = np.clip(sparse_forward(float_network, grid, cells), 0.0, 1.0)
     vertices, faces = dual_contour_edges(flags, cells, offsets)
     return {"vertices": vertices, "faces": faces, "edge_flags": flags, "cells": cells, "offsets": offsets}
+
+
+def unsigned_neural_dual_contouring(udf: np.ndarray, bool_network: UNDCNetwork,
+                                    float_network: UNDCNetwork) -> Extraction:
+    """UNDC on a UDF sampled on the grid of :mod:`benchmark.grid`: :func:`undc_predict` on ``udf / h``.
+
+    Parameters
+    ----------
+    udf : (N, N, N) unsigned distance on the grid points, canonical units.
+    bool_network, float_network : the two networks (:func:`load_weights`).
+
+    Returns
+    -------
+    :class:`methods.base.Extraction`: vertices (C, 3) float64, canonical frame; faces (F, 3) int64,
+    unoriented; info ``undc_edges`` (flagged edges) and ``undc_cells`` (C). Timed as the stage
+    ``undc_networks`` (:mod:`benchmark.timing`).
+    """
+    udf = np.asarray(udf, dtype=np.float32)
+    N = udf.shape[0]
+    with stage("undc_networks"):
+        out = undc_predict(bool_network, float_network, udf / np.float32(spacing(N)))
+    return Extraction(index_to_world(out["vertices"], N), out["faces"],
+                      {"undc_edges": int(out["edge_flags"].sum()), "undc_cells": int(len(out["cells"]))})
 
 
 # --------------------------------------------------------------------------------------------------

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.special import expit
-import torch
 import torch.nn.functional as F
 
 from benchmark.params import Param
@@ -66,5 +65,4 @@ class BOFMethod(Method):
         return {"wrong_side_points": wrong_side_points(fitted, exact, self.params["level"])}
 
     def extract(self, grid_field, N) -> Extraction:
-        V, Fc = marching_cubes_grid(np.asarray(grid_field), level=self.params["level"], inside="high")
-        return Extraction(V, Fc)
+        return marching_cubes_grid(np.asarray(grid_field), level=self.params["level"], inside="high")

@@ -7,14 +7,15 @@ samples' segments: o (0/1) and s. Loss::
     10 * mean_{o = 1} |s_hat - s|  +  BCE(o_hat, o)
 
 (BCE computed from the logit, ``binary_cross_entropy_with_logits``: the same value, stable).
-Extraction: E-DC (``methods.extractors.edc.edc_extract``) on the edges with o_hat > ``o_threshold``: 0.5, the
-decision point of the BCE-trained o (the paper evaluates at 0.1, ``PAPER_O_THRESHOLD``, a trade of
-false hits for recall that suits its GPU-budget network; at the ``cpu`` budget o is blurrier and 0.1
-keeps edges next to the surface: spurious faces and false sharp edges; docs/PROTOCOL.md).
+Extraction: E-DC (:func:`methods.extractors.edc.edge_dual_contouring`) on the edges with o_hat >
+``o_threshold``: 0.5, the decision point of the BCE-trained o (the paper evaluates at 0.1,
+``PAPER_O_THRESHOLD``, a trade of false hits for recall that suits its GPU-budget network; at the
+``cpu`` budget o is blurrier and 0.1 keeps edges next to the surface: spurious faces and false sharp
+edges; docs/PROTOCOL.md, "The o threshold").
 Face rule ``faces``: ``fan4`` (the paper's, default), ``quad2`` or ``fan4-adaptive`` (the fan except
 where its edge point is off the plane of the 4 cell vertices, as on walls thinner than a cell, where
-the fans fold into false sharp edges: 2 triangles there; ABC 00014489 at 128^3, oracle: EF1 0.773 ->
-0.998, mean over the 22 ABC meshes 0.922 -> 0.941; see ``edc_extract``).
+the fans fold into false sharp edges: 2 triangles there; see ``edge_dual_contouring`` and
+docs/PROTOCOL.md, "E-DC face rules").
 Normals (``normals=True``): the gradient of s_hat w.r.t. the endpoint nearer the hit (d s/d u if
 s_hat > 0.5, else d s/d v), normalised (sigmoid is monotonic, so the gradient of the s logit has the
 same direction), by autograd in chunks, only for intersected edges.
@@ -38,10 +39,11 @@ from scipy.special import expit
 
 from benchmark.grid import edge_inputs, spacing
 from benchmark.params import Param
-from benchmark.timing import record, stage
+from benchmark.timing import stage
 from methods.core import query
 from methods.base import Extraction, Method, median_angle_deg, register_method
 from methods.core.segment_field import nearer_endpoint_normals, segment_loss, segment_targets
+from methods.extractors.edc import edge_dual_contouring
 
 #: The paper's hit threshold of o_hat.
 PAPER_O_THRESHOLD = 0.1
@@ -139,7 +141,7 @@ class SALSMethod(Method):
         "clamp_to_cell": Param(False, "clip each QEF vertex to its cell (off in the paper)"),
         "faces": Param("fan4", "face rule: the paper's 4-triangle fan, 2 triangles per quad, or the fan only "
                        "where its edge point lies on the plane of the 4 cell vertices, else 2 triangles "
-                       "(fan4-adaptive: no thin-wall folds, see methods.extractors.edc.edc_extract)",
+                       "(fan4-adaptive: no thin-wall folds, see methods.extractors.edc.edge_dual_contouring)",
                        choices=("fan4", "quad2", "fan4-adaptive")),
         "o_calibration": Param(False, "after the fit, set o_threshold per shape to the value that maximises the F1 "
                                "of the network's hit flags on grid edges near the surface, labelled by the exact "
@@ -259,12 +261,7 @@ class SALSMethod(Method):
         return errors
 
     def extract(self, grid_field, N) -> Extraction:
-        from methods.extractors.edc import edc_extract
-
         normals = grid_field.get("normals") if self.params["normals"] else None
-        V, Fc, steps = edc_extract(N, grid_field["edge_ids"], grid_field["s"], normals,
-                                   qef_cutoff=self.params["qef_cutoff"], clamp_to_cell=self.params["clamp_to_cell"],
-                                   faces=self.params["faces"])
-        for step, seconds in steps.items():
-            record(step, seconds)
-        return Extraction(V, Fc, info={"intersected_edges": int(len(grid_field["edge_ids"]))})
+        return edge_dual_contouring(N, grid_field["edge_ids"], grid_field["s"], normals,
+                                    qef_cutoff=self.params["qef_cutoff"], clamp_to_cell=self.params["clamp_to_cell"],
+                                    faces=self.params["faces"])

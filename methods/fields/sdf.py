@@ -12,7 +12,6 @@ min |f| < sqrt(3) S h / 2"; far points hold the trilinear upsampling of the coar
 from __future__ import annotations
 
 import numpy as np
-import torch
 
 from benchmark.grid import spacing
 from benchmark.params import Param
@@ -69,5 +68,4 @@ class SDFMethod(Method):
                 "sdf_error_h": float(np.abs(fitted[band] - exact[band]).mean() / h) if band.any() else np.nan}
 
     def extract(self, grid_field, N) -> Extraction:
-        V, F = marching_cubes_grid(np.asarray(grid_field), level=self.level, inside="low")
-        return Extraction(V, F)
+        return marching_cubes_grid(np.asarray(grid_field), level=self.level, inside="low")

@@ -12,11 +12,8 @@ the fitted values wherever they are not clipped.
 
 from __future__ import annotations
 
-import numpy as np
-
-from benchmark.grid import index_to_world, spacing
+from benchmark.grid import spacing
 from benchmark.params import Param
-from benchmark.timing import stage
 from methods.extractors import ndc
 from methods.core import query
 from methods.core.weights import WeightsError
@@ -56,11 +53,4 @@ class SDFNDCMethod(SDFMethod):
         return values[..., 0], {"query_fraction": info.fraction}
 
     def extract(self, grid_field, N) -> Extraction:
-        sdf_voxels = np.asarray(grid_field, dtype=np.float32) / np.float32(spacing(N))
-        inside = sdf_voxels < 0
-        cells = ndc.active_cells(inside)
-        with stage("ndc_network"):
-            offsets = ndc.ndc_vertex_offsets(sdf_voxels, cells)
-        with stage("dual_contouring"):
-            vertices, faces = ndc.dual_contour_signs(inside, offsets, cells)
-        return Extraction(index_to_world(vertices, N), faces, {"ndc_cells": int(len(cells))})
+        return ndc.neural_dual_contouring(grid_field)

@@ -8,9 +8,9 @@ Loss::
 
 (``grad_x f`` differentiable in the weights, :func:`methods.core.network.value_and_input_gradient`, from
 :meth:`UDFMethod.predict`).
-Extraction: ``methods.extractors.meshudf.meshudf_extract`` on (d, unit gradient) with the vertex UDF for the
-face filter read from the continuous field (``udf_at``: the network, or the exact UDF in oracle
-mode) when ``vertex_udf='field'`` (default), else MeshUDF's first-order estimate.
+Extraction: :func:`methods.extractors.meshudf.meshudf_marching_cubes` on (d, unit gradient) with the
+vertex UDF for the face filter read from the continuous field (``udf_at``: the network, or the exact
+UDF in oracle mode) when ``vertex_udf='field'`` (default), else MeshUDF's first-order estimate.
 Oracle: exact narrow-band UDF + exact gradient on the grid (``benchmark.fields``).
 Neural: sparse query of f (criterion: some block corner has f < sqrt(3) S h / 2; far points hold the
 trilinear upsampling of the coarse values), then the autograd gradient only where f < 2 h,
@@ -24,10 +24,11 @@ import torch.nn.functional as F
 
 from benchmark.grid import point_inputs, spacing
 from benchmark.params import Param
-from benchmark.timing import record, stage
+from benchmark.timing import stage
 from methods.core import query
 from methods.base import Extraction, Method, median_angle_deg, register_method
 from methods.core.network import value_and_input_gradient
+from methods.extractors.meshudf import meshudf_marching_cubes
 
 #: Loss clamp of the distance, canonical units.
 DISTANCE_CLAMP = 0.1
@@ -110,12 +111,7 @@ class UDFMethod(Method):
                 "gradient_error_deg": median_angle_deg(fitted["grad"][band], exact["grad"][band], oriented=True)}
 
     def extract(self, grid_field, N) -> Extraction:
-        from methods.extractors.meshudf import meshudf_extract
-
         udf_at = grid_field.get("udf_at") if self.params["vertex_udf"] == "field" else None
-        V, Fc, steps = meshudf_extract(grid_field["udf"], grid_field["grad"], udf_at=udf_at,
-                                       mean_factor=self.params["mean_factor"], max_factor=self.params["max_factor"],
-                                       face_factor=self.params["face_filter"], sign_rule=self.params["sign_rule"])
-        for step, seconds in steps.items():
-            record(step, seconds)
-        return Extraction(V, Fc)
+        return meshudf_marching_cubes(grid_field["udf"], grid_field["grad"], udf_at=udf_at,
+                                      mean_factor=self.params["mean_factor"], max_factor=self.params["max_factor"],
+                                      face_factor=self.params["face_filter"], sign_rule=self.params["sign_rule"])

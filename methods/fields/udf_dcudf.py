@@ -16,13 +16,12 @@ import numpy as np
 from benchmark.params import Param
 from methods.core import query
 from methods.base import Extraction, register_method
-from methods.extractors.dcudf import AUTHORS_ITERATIONS, REGION_RATE, authors_r, dcudf_extract
+from methods.extractors.dcudf import AUTHORS_ITERATIONS, REGION_RATE, authors_r, dcudf
 from methods.core.device import get_device
 from methods.fields.udf import UDFMethod
 
-#: Optimisation iterations by default. The authors' 400 take 20-40 minutes at 128^3 on one CPU core
-#: for the exact UDF of an ABC part: each iteration queries ~300k points (vertices and face
-#: centroids), 3-6 s through libigl's AABB tree, which the long triangles of CAD meshes make slow.
+#: Optimisation iterations by default, a tenth of the authors' 400: each iteration queries the UDF at
+#: every vertex and face centroid (their cost on one CPU core: docs/PROTOCOL.md, ``udf-dcudf``).
 #: With fewer iterations the learning rate grows in proportion (:func:`methods.extractors.dcudf.authors_lr`).
 CPU_ITERATIONS = 40
 
@@ -74,9 +73,8 @@ class UDFDCUDFMethod(UDFMethod):
 
     def extract(self, grid_field, N) -> Extraction:
         p = self.params
-        V, F, facts = dcudf_extract(grid_field["udf"], grid_field["udf_grad_at"], grid_field["udf_at"],
-                                    r=authors_r(N) if p["r"] is None else p["r"], iterations=p["iterations"],
-                                    normal_step=p["normal_step"], laplacian_weight=p["laplacian_weight"],
-                                    cut=p["cut"], region_rate=p["region_rate"], seed=p["cut_seed"],
-                                    device=grid_field.get("device"))
-        return Extraction(V, F, facts)
+        return dcudf(grid_field["udf"], grid_field["udf_grad_at"], grid_field["udf_at"],
+                     r=authors_r(N) if p["r"] is None else p["r"], iterations=p["iterations"],
+                     normal_step=p["normal_step"], laplacian_weight=p["laplacian_weight"],
+                     cut=p["cut"], region_rate=p["region_rate"], seed=p["cut_seed"],
+                     device=grid_field.get("device"))

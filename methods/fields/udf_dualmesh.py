@@ -13,10 +13,9 @@ from __future__ import annotations
 import numpy as np
 
 from benchmark.params import Param
-from benchmark.timing import stage
 from methods.core import query
 from methods.base import Extraction, register_method
-from methods.extractors.dualmesh import dualmesh_extract
+from methods.extractors.dualmesh import dualmesh_udf
 from methods.fields.udf import UDFMethod
 
 
@@ -47,6 +46,4 @@ class UDFDualMeshMethod(UDFMethod):
                 {"query_fraction": info.fraction})
 
     def extract(self, grid_field, N) -> Extraction:
-        with stage("dualmesh"):
-            V, F, facts = dualmesh_extract(grid_field["udf"], grid_field["udf_grad_at"], grid_field["udf_at"])
-        return Extraction(V, F, facts)
+        return dualmesh_udf(grid_field["udf"], grid_field["udf_grad_at"], grid_field["udf_at"])

@@ -2,8 +2,8 @@
 Contouring, Chen et al., SIGGRAPH 2022) with our own weights.
 
 The field is the ``udf`` method's: the same targets and loss, and in neural mode the same fitted
-network (``fit_of = 'udf'``). Extraction: :func:`methods.extractors.undc.undc_predict` on the UDF in voxel units
-(``d / h``): the bool network flags the grid edges that cross the surface (only edges whose end points
+network (``fit_of = 'udf'``). Extraction: :func:`methods.extractors.undc.unsigned_neural_dual_contouring`
+on the UDF in voxel units (``d / h``): the bool network flags the grid edges that cross the surface (only edges whose end points
 both have UDF < 1 voxel are considered), the float network places a vertex in every cell around a
 flagged edge, a quad (two unoriented triangles) joins the 4 cells of each flagged edge. NDC's optional
 post-processing of the flags is not applied.
@@ -22,9 +22,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from benchmark.grid import index_to_world, spacing
+from benchmark.grid import spacing
 from benchmark.params import Param
-from benchmark.timing import stage
 from methods.core import query
 from methods.extractors import undc
 from methods.core.weights import WeightsError
@@ -82,9 +81,5 @@ class UDFNDCMethod(UDFMethod):
 
     def extract(self, grid_field, N) -> Extraction:
         bool_network, float_network, info = _load()
-        udf_voxels = np.asarray(grid_field["udf"], dtype=np.float32) / np.float32(spacing(N))
-        with stage("undc_networks"):
-            out = undc.undc_predict(bool_network, float_network, udf_voxels)
-        return Extraction(index_to_world(out["vertices"], N), out["faces"],
-                          {"undc_edges": int(out["edge_flags"].sum()), "undc_cells": int(len(out["cells"])),
-                           "undc_weights": info["sha256"][:12]})
+        mesh = undc.unsigned_neural_dual_contouring(grid_field["udf"], bool_network, float_network)
+        return Extraction(mesh.vertices, mesh.faces, {**mesh.info, "undc_weights": info["sha256"][:12]})

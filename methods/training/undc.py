@@ -2,7 +2,7 @@
 
 Recipe, after NDC's ``main.py`` / ``dataset.py`` for ``--method undc --input_type udf``:
 
-* Shapes: :func:`methods.pointcloud.knn.training.training_shapes` (built-in CAD-like parts at the training seed,
+* Shapes: :func:`methods.pointcloud.training_set.training_shapes` (built-in CAD-like parts at the training seed,
   checked against the built-in test shapes by content hash, plus every mesh of the Thingi10K folder
   ``../shared/data/thingi10k`` beside the checkout), none of the ABC test parts.
 * Labels per shape and grid resolution (:data:`UNDCBudget.grids`; NDC's 32 and 64 cells, 33 and 65
@@ -47,7 +47,7 @@ import torch.nn.functional as F
 from benchmark.fields import ExactFields
 from methods.extractors import undc
 from methods.core.device import seeded_generator
-from methods.pointcloud.knn.training import DEFAULT_TRAINING_SEED, training_set_digest, training_shapes
+from methods.pointcloud.training_set import DEFAULT_TRAINING_SEED, training_set_digest, training_shapes
 from methods.core.training_loop import run_steps
 
 #: The Thingi10K training meshes beside the checkout.
@@ -113,7 +113,7 @@ def get_undc_budget(budget: str | UNDCBudget) -> UNDCBudget:
 
 def undc_training_shapes(budget: str | UNDCBudget, seed: int = DEFAULT_TRAINING_SEED,
                          thingi_dir: str | Path = DEFAULT_THINGI_DIR) -> list:
-    """The training shapes of ``budget`` (:func:`methods.pointcloud.knn.training.training_shapes`)."""
+    """The training shapes of ``budget`` (:func:`methods.pointcloud.training_set.training_shapes`)."""
     budget = get_undc_budget(budget)
     return training_shapes(budget.shapes, seed, (Path(thingi_dir),) if budget.thingi else ())
 

@@ -29,9 +29,11 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from benchmark.grid import LOWER, ijk_axis_to_edge_index, spacing
+from methods.base import Extraction
+from methods.extractors.mesh_ops import drop_unreferenced_vertices
 from methods.extractors.meshudf import CUBE_CORNERS, CUBE_EDGES, mc_case_table
 
-__all__ = ["candidate_cells", "gradient_signs", "cap_udf_extract", "remove_far_faces"]
+__all__ = ["candidate_cells", "gradient_signs", "gradient_sign_marching_cubes", "remove_far_faces"]
 
 _EDGE_AXIS = np.repeat(np.arange(3), 4)  # cube edge e runs along axis e // 4 (methods.extractors.meshudf)
 
@@ -54,7 +56,7 @@ def gradient_signs(G: np.ndarray) -> np.ndarray:
     return np.where(dots < 0, -1.0, 1.0)
 
 
-def cap_udf_extract(udf: np.ndarray, grad: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray]:
+def gradient_sign_marching_cubes(udf: np.ndarray, grad: np.ndarray, threshold: float) -> Extraction:
     """CAP-UDF's mesh of the zero set of a grid UDF (module docstring, steps 1-3).
 
     Parameters
@@ -65,7 +67,8 @@ def cap_udf_extract(udf: np.ndarray, grad: np.ndarray, threshold: float) -> tupl
 
     Returns
     -------
-    vertices : (n, 3) float64, canonical frame; faces : (m, 3) int64, unoriented.
+    :class:`methods.base.Extraction`: vertices (n, 3) float64, canonical frame; faces (m, 3) int64,
+    unoriented.
     """
     udf, grad = np.asarray(udf), np.asarray(grad)
     if udf.ndim != 3 or len(set(udf.shape)) != 1 or udf.shape[0] < 2:
@@ -85,7 +88,7 @@ def cap_udf_extract(udf: np.ndarray, grad: np.ndarray, threshold: float) -> tupl
     table, counts = mc_case_table()
     active = np.flatnonzero(counts[case])
     if len(active) == 0:
-        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+        return Extraction(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
     ijk, Fv, negative, case = ijk[active], Fv[active], negative[active], case[active]
     ntri = counts[case]
     # crossings: cube edges whose corners have opposite signs
@@ -107,8 +110,7 @@ def cap_udf_extract(udf: np.ndarray, grad: np.ndarray, threshold: float) -> tupl
     vid_of[cc, ee] = vid
     cell = np.repeat(np.arange(len(ijk)), ntri)
     slot = np.arange(len(cell)) - np.repeat(np.cumsum(ntri) - ntri, ntri)
-    faces = vid_of[cell[:, None], table[case[cell], slot]]
-    return vertices, faces
+    return Extraction(vertices, vid_of[cell[:, None], table[case[cell], slot]])
 
 
 def remove_far_faces(vertices: np.ndarray, faces: np.ndarray, cloud: np.ndarray,
@@ -118,7 +120,4 @@ def remove_far_faces(vertices: np.ndarray, faces: np.ndarray, cloud: np.ndarray,
     if len(faces) == 0:
         return vertices, faces
     dist, _ = cKDTree(np.asarray(cloud, dtype=np.float64)).query(vertices, distance_upper_bound=far)
-    faces = faces[dist[faces].mean(axis=1) < far]
-    used = np.zeros(len(vertices), dtype=bool)
-    used[faces.reshape(-1)] = True
-    return vertices[used], (np.cumsum(used) - 1)[faces]
+    return drop_unreferenced_vertices(vertices, faces[dist[faces].mean(axis=1) < far])

@@ -25,7 +25,7 @@ A per-shape optimisation from the raw cloud, no pre-training:
 6. Extraction (:mod:`methods.pointcloud.cap_udf.extraction`): the network's distance and gradient on the run's
    grid, signs from the gradient field per cell, marching cubes per cell.
 
-Budgets (:data:`CAP_UDF_CONFIGS`): ``paper`` is the authors' ``confs/base.conf``; ``cpu`` a reduced
+Budgets (:data:`CAP_UDF_FAMILY`, ``--budget``): ``paper`` is the authors' ``confs/base.conf``; ``cpu`` a reduced
 network and schedule for one CPU core; ``tiny`` for tests.
 """
 
@@ -40,13 +40,15 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from benchmark.grid import spacing
-from benchmark.params import Param
+from benchmark.params import Param, check_fields, setting
 from benchmark.timing import stage
+from methods.core.schedules import warmup_then_cosine
 from methods.base import Extraction, PointCloudMethod, register_method
-from methods.pointcloud.cap_udf.extraction import cap_udf_extract, remove_far_faces
+from methods.core.budgets import register_budget_family
+from methods.pointcloud.cap_udf.extraction import gradient_sign_marching_cubes, remove_far_faces
 from methods.pointcloud.cap_udf.network import CAPUDFNetwork, pull, udf_and_gradient
 from methods.core.device import get_device, seeded_generator
-from methods.pointcloud.knn.query import band_points
+from methods.pointcloud.neighbourhoods import band_points
 from benchmark.grid import point_inputs
 from methods.core.training_loop import run_steps
 
@@ -63,8 +65,8 @@ FAR = 1.0
 
 
 @dataclass(frozen=True)
-class CAPUDFConfig:
-    """One budget of the per-shape optimisation (names of ``confs/base.conf`` in brackets).
+class CAPUDFBudget:
+    """CAP-UDF's budget: its per-shape optimisation (names of ``confs/base.conf`` in brackets).
 
     width, hidden_layers, skip : the MLP (``d_hidden`` 256, ``n_layers`` 8, ``skip_in`` [4]).
     queries : query points drawn in all (1,000,000; ``queries // P`` per input point).
@@ -79,31 +81,42 @@ class CAPUDFConfig:
     low_range : the densification's queries spread ``low_range`` x the queries' offset std (1.1).
     """
 
-    width: int
-    hidden_layers: int
-    skip: int
-    queries: int
-    batch: int
-    batch_step2: int
-    step1: int
-    steps: int
-    warm_up: int
-    lr: float = 1e-3
-    generated: int = 1_000_000
-    df_filter: float = 0.01
-    outlier: float = 0.002
-    extra_points_rate: float = 1.0
-    low_range: float = 1.1
+    name: str = setting(Param(kind=str, help="budget name"))
+    width: int = setting(Param(kind=int, help="width of the MLP", ge=1), override=True)
+    hidden_layers: int = setting(Param(kind=int, help="hidden layers of the MLP", ge=1), override=True)
+    skip: int = setting(Param(kind=int, help="layer that takes the input again (skip connection)", ge=1), override=True)
+    queries: int = setting(Param(kind=int, help="query points drawn in all", ge=1), override=True)
+    batch: int = setting(Param(kind=int, help="queries per step before the densification", ge=1), override=True)
+    batch_step2: int = setting(Param(kind=int, help="queries per step after the densification", ge=1), override=True)
+    step1: int = setting(Param(kind=int, help="step of the densification", ge=0), override=True)
+    steps: int = setting(Param(kind=int, help="optimizer steps in all", ge=1), override=True)
+    warm_up: int = setting(Param(kind=int, help="steps of the linear warm-up", ge=0), override=True)
+    lr: float = setting(Param(1e-3, "peak Adam learning rate", gt=0), override=True)
+    generated: int = setting(Param(1_000_000, "pulled points drawn at the densification", ge=1), override=True)
+    df_filter: float = setting(Param(0.01, "pulled points with a distance below this are kept (authors' units)",
+                                     gt=0), override=True)
+    outlier: float = setting(Param(0.002, "... and within this of the cloud (authors' units)", gt=0), override=True)
+    extra_points_rate: float = setting(Param(1.0, "points added at the densification, per input point", ge=0),
+                                       override=True)
+    low_range: float = setting(Param(1.1, "spread of the densification's queries, x the query offsets' std", gt=0),
+                               override=True)
+
+    def __post_init__(self):
+        check_fields(self, f"cap-udf budget '{self.name}'")
+        if not self.step1 <= self.steps:
+            raise ValueError(f"cap-udf budget '{self.name}': step1 {self.step1} > steps {self.steps}")
 
 
-CAP_UDF_CONFIGS = {
-    "paper": CAPUDFConfig(width=256, hidden_layers=8, skip=4, queries=1_000_000, batch=5000, batch_step2=20000,
-                          step1=40_000, steps=60_000, warm_up=1000),
-    "cpu": CAPUDFConfig(width=64, hidden_layers=8, skip=4, queries=1_000_000, batch=500, batch_step2=1000,
-                        step1=5600, steps=8400, warm_up=140, generated=200_000),
-    "tiny": CAPUDFConfig(width=64, hidden_layers=4, skip=2, queries=60_000, batch=500, batch_step2=1000,
-                         step1=200, steps=300, warm_up=10, generated=20_000),
-}
+#: *paper*: the authors' ``confs/base.conf`` (a GPU). *cpu*: one core, about a minute a shape.
+#: *tiny*: tests.
+CAP_UDF_FAMILY = register_budget_family("cap-udf", (
+    CAPUDFBudget("paper", width=256, hidden_layers=8, skip=4, queries=1_000_000, batch=5000, batch_step2=20000,
+                 step1=40_000, steps=60_000, warm_up=1000),
+    CAPUDFBudget("cpu", width=64, hidden_layers=8, skip=4, queries=1_000_000, batch=500, batch_step2=1000,
+                 step1=5600, steps=8400, warm_up=140, generated=200_000),
+    CAPUDFBudget("tiny", width=64, hidden_layers=4, skip=2, queries=60_000, batch=500, batch_step2=1000,
+                 step1=200, steps=300, warm_up=10, generated=20_000),
+))
 
 
 def authors_frame(points: np.ndarray) -> tuple[np.ndarray, float]:
@@ -153,12 +166,10 @@ def field_consistency_loss(targets: torch.Tensor, moved: torch.Tensor) -> torch.
     return 0.5 * (to_moved.mean() + to_targets.mean())
 
 
-def learning_rate(step: int, config: CAPUDFConfig) -> float:
+def learning_rate(step: int, config: CAPUDFBudget) -> float:
     """The authors' schedule at 0-based ``step``: ``lr step / warm_up`` during the warm-up, then
     ``lr (1 + cos(pi (step - warm_up) / (steps - warm_up))) / 2``."""
-    if step < config.warm_up:
-        return config.lr * step / config.warm_up
-    return config.lr * 0.5 * (math.cos((step - config.warm_up) / (config.steps - config.warm_up) * math.pi) + 1.0)
+    return config.lr * warmup_then_cosine(step, config.steps, config.warm_up)
 
 
 def voxel_downsample(points: np.ndarray, count: int, halvings: int = 24) -> np.ndarray:
@@ -191,7 +202,7 @@ def voxel_downsample(points: np.ndarray, count: int, halvings: int = 24) -> np.n
 
 
 def densify(model: torch.nn.Module, cloud: np.ndarray, targets: torch.Tensor, samples: torch.Tensor,
-            config: CAPUDFConfig, rng: np.random.Generator) -> np.ndarray:
+            config: CAPUDFBudget, rng: np.random.Generator) -> np.ndarray:
     """The authors' progressive surface approximation (``gen_extra_pointcloud``): extra surface
     points (E, 3) from the network, in the authors' frame.
 
@@ -230,7 +241,7 @@ class CAPUDFFit:
     extra_points: int
 
 
-def fit_cap_udf(cloud: np.ndarray, config: CAPUDFConfig, seed: int = 0, device=None) -> CAPUDFFit:
+def fit_cap_udf(cloud: np.ndarray, config: CAPUDFBudget, seed: int = 0, device=None) -> CAPUDFFit:
     """Optimise a CAP-UDF network on ``cloud`` (P, 3) in the authors' frame (module docstring,
     steps 2-5), seeded from ``seed`` (network init, query noise, batches)."""
     device = get_device(device)
@@ -290,13 +301,10 @@ class CAPUDFMethod(PointCloudMethod):
     description = ("CAP-UDF: a per-shape UDF MLP pulled onto the raw cloud (field consistency, progressive "
                    "densification), gradient-sign marching cubes")
     extractor = "CAP-UDF gradient-sign marching cubes"
-    table_note = ("cap-udf optimises its own MLP per shape at its own budget (cap-udf.budget); the budget values "
-                  "of the protocol line describe the K-NN network of sals-knn, udf-knn and occ-knn.")
+    budget_family = "cap-udf"
     display_order = 150
     color = "#b5179e"
     parameters = {
-        "budget": Param("cpu", "optimisation budget: 'paper' (the authors' base.conf, a GPU), 'cpu' (one core, "
-                        "about a minute), 'tiny' (tests)", choices=tuple(CAP_UDF_CONFIGS)),
         "band": Param(2.0, "grid points within this many h of an input point (and their grid neighbours) are "
                       "queried; the others are far", gt=0),
         "cell_threshold": Param(1.16, "cells whose smallest corner UDF exceeds this x h are skipped (the authors: "
@@ -305,15 +313,16 @@ class CAPUDFMethod(PointCloudMethod):
                      "(the authors' base.conf)", ge=0),
     }
 
-    def reconstruct(self, points: np.ndarray, N: int, device=None, seed: int = 0) -> Extraction:
+    def reconstruct(self, points: np.ndarray, N: int, device=None, seed: int = 0, *,
+                    budget: CAPUDFBudget) -> Extraction:
+        """A mesh from ``points`` by CAP-UDF's optimisation at ``budget`` (a record of its family)."""
         points = self.checked_points(points)
         if len(points) <= SIGMA_NEIGHBOUR:
             raise ValueError(f"cap-udf: {len(points)} points, it needs more than {SIGMA_NEIGHBOUR} (its query "
                              f"spread is the distance to the {SIGMA_NEIGHBOUR}th neighbour)")
-        config = CAP_UDF_CONFIGS[self.params["budget"]]
         device = get_device(device)
         centre, scale = authors_frame(points)
-        fitted = fit_cap_udf((points - centre) / scale, config, seed=seed, device=device)
+        fitted = fit_cap_udf((points - centre) / scale, budget, seed=seed, device=device)
         h = spacing(N)
         with stage("field"):
             mask = np.zeros((N, N, N), dtype=bool)
@@ -324,7 +333,8 @@ class CAPUDFMethod(PointCloudMethod):
             grad = np.zeros((N, N, N, 3), dtype=np.float32)
             udf[tuple(ijk.T)], grad[tuple(ijk.T)] = values, grads
         with stage("extract"):
-            V, F = cap_udf_extract(udf, grad, self.params["cell_threshold"] * h)
+            mesh = gradient_sign_marching_cubes(udf, grad, self.params["cell_threshold"] * h)
+            V, F = mesh.vertices, mesh.faces
             if self.params["far"] > 0:
                 V, F = remove_far_faces(V, F, points, self.params["far"] * h)
         return Extraction(V, F, info={"fit_s": fitted.seconds, "final_loss": fitted.final_loss,

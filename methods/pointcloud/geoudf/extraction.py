@@ -36,6 +36,7 @@ import trimesh
 from skimage.measure import marching_cubes as _skimage_marching_cubes
 
 from benchmark.grid import LOWER, ijk_axis_to_edge_index, spacing
+from methods.base import Extraction
 from methods.extractors.marching_cubes import empty_mesh
 
 __all__ = ["CORNERS", "CELL_EDGES", "CORNER_PAIRS", "triangle_table", "crossing_pairs", "cube_labels",
@@ -132,7 +133,7 @@ def _clean(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndar
 
 
 def edge_marching_cubes(udf: np.ndarray, grad: np.ndarray, snap: float, cull: float = 2.0,
-                        near: float = 1.1) -> tuple[np.ndarray, np.ndarray, dict]:
+                        near: float = 1.1) -> Extraction:
     """GeoUDF's E-MC (module docstring) on the grid of :mod:`benchmark.grid`.
 
     Parameters
@@ -145,8 +146,8 @@ def edge_marching_cubes(udf: np.ndarray, grad: np.ndarray, snap: float, cull: fl
 
     Returns
     -------
-    vertices (V, 3) float64 canonical frame, faces (F, 3) int64 (unoriented), and facts:
-    ``emc_cells`` (cells tested), ``emc_cut_cells`` (cells with triangles).
+    :class:`methods.base.Extraction`: vertices (V, 3) float64 canonical frame, faces (F, 3) int64
+    (unoriented), info ``emc_cells`` (cells tested), ``emc_cut_cells`` (cells with triangles).
     """
     udf = np.asarray(udf, dtype=np.float64)
     grad = np.asarray(grad, dtype=np.float64)
@@ -169,8 +170,7 @@ def edge_marching_cubes(udf: np.ndarray, grad: np.ndarray, snap: float, cull: fl
     cells, triangles = cells[cut], triangles[cut]
     cell_of, slot = np.nonzero(triangles[:, :, 0] >= 0)
     if len(cell_of) == 0:
-        V, Fc = empty_mesh()
-        return V, Fc, info
+        return Extraction(*empty_mesh(), info)
     local = triangles[cell_of, slot]  # (T, 3) cell edge indices
     start = CORNERS[CELL_EDGES[:, 0]]  # (12, 3) lower corner offset of each cell edge
     axis = np.argmax(CORNERS[CELL_EDGES[:, 1]] - start, axis=1)  # (12,)
@@ -183,5 +183,4 @@ def edge_marching_cubes(udf: np.ndarray, grad: np.ndarray, snap: float, cull: fl
     lo = e_start[first]
     hi = lo + np.eye(3, dtype=np.int64)[axis[local].reshape(-1)[first]]
     points = edge_points(LOWER + lo * h, udf[tuple(lo.T)], LOWER + hi * h, udf[tuple(hi.T)], snap)
-    vertices, faces = _clean(points, corner_of.reshape(-1, 3))
-    return vertices, faces, info
+    return Extraction(*_clean(points, corner_of.reshape(-1, 3)), info)

@@ -67,22 +67,24 @@ from pykdtree.kdtree import KDTree
 from benchmark.fields import ExactFields
 from benchmark.grid import spacing
 from benchmark.params import Param, check_fields, setting
+from benchmark.seeding import training_streams
 from benchmark.surface import sample_surface
 from benchmark.timing import stage
 from methods.base import Extraction, register_method
+from methods.core.budgets import register_budget_family
 from methods.core.device import get_device, seeded_generator
 from methods.pointcloud.geoudf.extraction import CORNERS, edge_marching_cubes
 from methods.pointcloud.geoudf.network import GeoUDFNetwork, make_geoudf_network, nearest_indices
-from methods.pointcloud.knn.network import knn_neighbourhoods
-from methods.pointcloud.knn.query import band_points, nearest_distance
-from methods.pointcloud.knn.training import KNNTrainResult, get_knn_budget
+from methods.pointcloud.neighbourhoods import knn_neighbourhoods
+from methods.pointcloud.neighbourhoods import band_points, nearest_distance
+from methods.pointcloud.training_set import TrainingSet, TrainResult
 from methods.extractors.meshlab import current_mesh, oriented_point_set
 from methods.pointcloud.own_network import OwnNetworkMethod
 from benchmark.grid import point_inputs
 from methods.core.training_loop import FittingError, run_steps
 
-__all__ = ["FRAME_SCALE", "QUERY_SIGMAS", "QUERY_RATIOS", "GeoUDFConfig", "GEOUDF_CONFIGS", "geoudf_config",
-           "ShapePool", "query_pool", "build_pools", "draw_items", "chamfer_loss", "train_geoudf", "cover_patches",
+__all__ = ["FRAME_SCALE", "QUERY_SIGMAS", "QUERY_RATIOS", "GeoUDFBudget", "GEOUDF_FAMILY",
+           "GeoUDFPool", "query_pool", "build_pools", "draw_items", "chamfer_loss", "train_geoudf", "cover_patches",
            "upsample", "udf_and_gradient", "GeoUDFMethod"]
 
 #: Canonical units per authors' unit: the canonical frame's largest side (the authors' is 1).
@@ -99,36 +101,42 @@ FAR = 1.0
 
 
 @dataclass(frozen=True)
-class GeoUDFConfig:
-    """GeoUDF's architecture and schedule at one budget (:data:`GEOUDF_CONFIGS`, keyed by the
-    :class:`methods.pointcloud.knn.network.KNNBudget` name; the budget gives the training set, its pools and
-    the cloud density)."""
+class GeoUDFBudget(TrainingSet):
+    """GeoUDF's budget: its architecture and schedule, the density of a training shape's cloud
+    (``points_per_item`` points of its pool) and its training set (:class:`TrainingSet`)."""
 
     name: str = setting(Param(kind=str, help="budget name"))
-    knn: int = setting(Param(kind=int, help="neighbours of LGR-Net's EdgeConv graphs", ge=1))
-    width: int = setting(Param(kind=int, help="LGR-Net feature width", ge=1))
-    coefficient_widths: tuple = setting(Param(kind=tuple, item=int, help="hidden widths of the patch head", ge=1))
-    up_ratio: int = setting(Param(kind=int, help="upsampled points per input point", ge=2))
-    udf_k: int = setting(Param(kind=int, help="upsampled points a query's UDF weighs", ge=1))
-    feature_widths: tuple = setting(Param(kind=tuple, item=int, help="widths of the UDF point MLP", ge=1))
-    attention_widths: tuple = setting(Param(kind=tuple, item=int, help="hidden widths of the weight heads", ge=1))
-    patch_points: int = setting(Param(kind=int, help="input points of a training item", ge=1))
-    queries: int = setting(Param(kind=int, help="labelled queries of a training item", ge=1))
-    pu_batch: int = setting(Param(kind=int, help="items per step, stage 1", ge=1))
-    pu_steps: int = setting(Param(kind=int, help="steps of stage 1 (LGR-Net alone)", ge=0))
-    pu_lr: float = setting(Param(kind=float, help="Adam learning rate of stage 1 (constant)", gt=0))
-    rec_batch: int = setting(Param(kind=int, help="items per step, stage 2", ge=1))
-    rec_steps: int = setting(Param(kind=int, help="steps of stage 2 (both networks)", ge=1))
-    rec_lr: float = setting(Param(kind=float, help="Adam learning rate of stage 2 (constant)", gt=0))
-    cd_weight: float = setting(Param(100.0, "weight of the Chamfer distance", ge=0))
-    udf_weight: float = setting(Param(1.0, "weight of the UDF L1 loss", ge=0))
-    grad_weight: float = setting(Param(0.1, "weight of the gradient cosine loss", ge=0))
+    points_per_item: int = setting(Param(kind=int, help="input points of a training shape's cloud (drawn from its pool)", ge=1), override=True)
+    knn: int = setting(Param(kind=int, help="neighbours of LGR-Net's EdgeConv graphs", ge=1), override=True)
+    width: int = setting(Param(kind=int, help="LGR-Net feature width", ge=1), override=True)
+    coefficient_widths: tuple = setting(Param(kind=tuple, item=int, help="hidden widths of the patch head", ge=1), override=True)
+    up_ratio: int = setting(Param(kind=int, help="upsampled points per input point", ge=2), override=True)
+    udf_k: int = setting(Param(kind=int, help="upsampled points a query's UDF weighs", ge=1), override=True)
+    feature_widths: tuple = setting(Param(kind=tuple, item=int, help="widths of the UDF point MLP", ge=1), override=True)
+    attention_widths: tuple = setting(Param(kind=tuple, item=int, help="hidden widths of the weight heads", ge=1), override=True)
+    patch_points: int = setting(Param(kind=int, help="input points of a training item", ge=1), override=True)
+    queries: int = setting(Param(kind=int, help="labelled queries of a training item", ge=1), override=True)
+    pu_batch: int = setting(Param(kind=int, help="items per step, stage 1", ge=1), override=True)
+    pu_steps: int = setting(Param(kind=int, help="steps of stage 1 (LGR-Net alone)", ge=0), override=True)
+    pu_lr: float = setting(Param(kind=float, help="Adam learning rate of stage 1 (constant)", gt=0), override=True)
+    rec_batch: int = setting(Param(kind=int, help="items per step, stage 2", ge=1), override=True)
+    rec_steps: int = setting(Param(kind=int, help="steps of stage 2 (both networks)", ge=1), override=True)
+    rec_lr: float = setting(Param(kind=float, help="Adam learning rate of stage 2 (constant)", gt=0), override=True)
+    cd_weight: float = setting(Param(100.0, "weight of the Chamfer distance", ge=0), override=True)
+    udf_weight: float = setting(Param(1.0, "weight of the UDF L1 loss", ge=0), override=True)
+    grad_weight: float = setting(Param(0.1, "weight of the gradient cosine loss", ge=0), override=True)
     log_every: int = setting(Param(50, "steps between loss reports", ge=1))
 
     def __post_init__(self):
-        check_fields(self, f"geoudf config '{self.name}'")
+        check_fields(self, f"geoudf budget '{self.name}'")
         if self.patch_points < self.knn:
-            raise ValueError(f"geoudf config '{self.name}': patch_points {self.patch_points} < knn {self.knn}")
+            raise ValueError(f"geoudf budget '{self.name}': patch_points {self.patch_points} < knn {self.knn}")
+        if self.points_per_item < self.patch_points:
+            raise ValueError(f"geoudf budget '{self.name}': points_per_item {self.points_per_item} < patch_points "
+                             f"{self.patch_points}")
+        if self.pool_points < self.points_per_item:
+            raise ValueError(f"geoudf budget '{self.name}': pool_points {self.pool_points} < points_per_item "
+                             f"{self.points_per_item} (a shape's cloud is drawn without replacement)")
 
     def network_config(self) -> dict:
         """Keyword arguments of :func:`methods.pointcloud.geoudf.network.make_geoudf_network`."""
@@ -145,27 +153,23 @@ class GeoUDFConfig:
 #: within ~15 min on one core: width 32, patch head 64 -> 32 -> 16, the UDF MLP 32-64-64-64 and
 #: heads 64 -> 32 -> 16; the authors' K, R, UDF K, learning rates and loss weights; items of 512
 #: points and 512 queries, batches of 4, 1,000 + 2,000 steps. *tiny*: tests (seconds).
-GEOUDF_CONFIGS: dict[str, GeoUDFConfig] = {c.name: c for c in (
-    GeoUDFConfig("paper", knn=20, width=128, coefficient_widths=(256, 128, 64), up_ratio=16, udf_k=10,
+GEOUDF_FAMILY = register_budget_family("geoudf", (
+    GeoUDFBudget("paper", knn=20, width=128, coefficient_widths=(256, 128, 64), up_ratio=16, udf_k=10,
                  feature_widths=(64, 128, 128, 128), attention_widths=(256, 128, 32), patch_points=3_000,
                  queries=2_048, pu_batch=16, pu_steps=191_600, pu_lr=1e-3, rec_batch=12, rec_steps=766_500,
-                 rec_lr=1e-4, log_every=500),
-    GeoUDFConfig("cpu", knn=20, width=32, coefficient_widths=(64, 32, 16), up_ratio=16, udf_k=10,
+                 rec_lr=1e-4, log_every=500,
+               points_per_item=40_000, training_shapes=100, pool_samples=1_000_000, pool_points=1_000_000),
+    GeoUDFBudget("cpu", knn=20, width=32, coefficient_widths=(64, 32, 16), up_ratio=16, udf_k=10,
                  feature_widths=(32, 64, 64, 64), attention_widths=(64, 32, 16), patch_points=512,
                  queries=512, pu_batch=4, pu_steps=1_000, pu_lr=1e-3, rec_batch=4, rec_steps=2_000, rec_lr=1e-4,
-                 log_every=50),
-    GeoUDFConfig("tiny", knn=8, width=16, coefficient_widths=(32, 16), up_ratio=4, udf_k=6,
+                 log_every=50,
+               points_per_item=40_000, training_shapes=24, pool_samples=200_000, pool_points=200_000),
+    GeoUDFBudget("tiny", knn=8, width=16, coefficient_widths=(32, 16), up_ratio=4, udf_k=6,
                  feature_widths=(16, 32), attention_widths=(32, 16), patch_points=256, queries=256, pu_batch=2,
-                 pu_steps=60, pu_lr=3e-3, rec_batch=2, rec_steps=120, rec_lr=1e-3, log_every=20),
-)}
+                 pu_steps=60, pu_lr=3e-3, rec_batch=2, rec_steps=120, rec_lr=1e-3, log_every=20,
+               points_per_item=10_000, training_shapes=4, pool_samples=20_000, pool_points=20_000)
+))
 
-
-def geoudf_config(budget) -> GeoUDFConfig:
-    """The :class:`GeoUDFConfig` of a budget (its name, or a ``KNNBudget``)."""
-    name = budget if isinstance(budget, str) else budget.name
-    if name not in GEOUDF_CONFIGS:
-        raise ValueError(f"geoudf has no configuration for budget '{name}'; known: {', '.join(GEOUDF_CONFIGS)}")
-    return GEOUDF_CONFIGS[name]
 
 
 # --------------------------------------------------------------------------------------------------
@@ -173,7 +177,7 @@ def geoudf_config(budget) -> GeoUDFConfig:
 # --------------------------------------------------------------------------------------------------
 
 @dataclass
-class ShapePool:
+class GeoUDFPool:
     """One training shape's pools, canonical frame, float32: ``cloud`` (P, 3) input surface points,
     ``target`` (T, 3) upsampling targets, ``queries`` (Q, 3) with ``udf`` (Q,), ``grad`` (Q, 3) and
     ``closest`` (Q, 3) (the closest surface point of each query)."""
@@ -202,22 +206,22 @@ def query_pool(vertices: np.ndarray, faces: np.ndarray, count: int, rng: np.rand
     return queries, udf, grad, queries - udf[:, None] * grad
 
 
-def build_pools(shapes: Sequence, budget, config: GeoUDFConfig, seed: int) -> list[ShapePool]:
+def build_pools(shapes: Sequence, budget: GeoUDFBudget, seed: int) -> list[GeoUDFPool]:
     """The pools of every training shape: ``budget.pool_points`` input points, ``up_ratio x
     budget.points_per_item`` target points, ``budget.pool_samples`` labelled queries; shape i draws
-    from ``SeedSequence(seed).spawn(2)[0].spawn(n)[i]``. Non-finite labels raise FittingError."""
+    from its stream of :func:`benchmark.seeding.training_streams`. Non-finite labels raise FittingError."""
     if not shapes:
         raise FittingError("no training shapes")
     pools = []
-    streams = np.random.SeedSequence(int(seed)).spawn(2)[0].spawn(len(shapes))
+    streams = training_streams(seed).shape_streams(len(shapes))
     for shape, stream in zip(shapes, streams):
         rng = np.random.default_rng(stream)
         cloud, _ = sample_surface(shape.vertices, shape.faces, budget.pool_points, rng)
-        target, _ = sample_surface(shape.vertices, shape.faces, config.up_ratio * budget.points_per_item, rng)
+        target, _ = sample_surface(shape.vertices, shape.faces, budget.up_ratio * budget.points_per_item, rng)
         queries, udf, grad, closest = query_pool(shape.vertices, shape.faces, budget.pool_samples, rng)
         if not (np.all(np.isfinite(udf)) and np.all(np.isfinite(grad))):
             raise FittingError(f"non-finite UDF labels on training shape '{shape.name}'")
-        pools.append(ShapePool(shape.name, *(np.ascontiguousarray(a, dtype=np.float32)
+        pools.append(GeoUDFPool(shape.name, *(np.ascontiguousarray(a, dtype=np.float32)
                                              for a in (cloud, target, queries, udf, grad, closest))))
     return pools
 
@@ -231,13 +235,13 @@ def _nearest_rows(points: np.ndarray, centre: np.ndarray, count: int) -> tuple[n
     return rows, float(np.sqrt(sq[rows].max()))
 
 
-def draw_items(pools: list[ShapePool], budget, config: GeoUDFConfig, batch: int, with_queries: bool,
+def draw_items(pools: list[GeoUDFPool], budget: GeoUDFBudget, batch: int, with_queries: bool,
                rng: np.random.Generator) -> dict[str, np.ndarray]:
     """One batch of ``batch`` patches (module docstring), authors' frame, float32: ``points`` (B, M, 3),
     ``choice`` (B, M) int64 (each point's (u, v) set), ``target`` (B, R M, 3); with ``with_queries``
     also ``queries`` (B, S, 3), ``udf`` (B, S), ``grad`` (B, S, 3). Shapes distinct within a batch
     (repeats only when there are fewer)."""
-    M, R, S = config.patch_points, config.up_ratio, config.queries
+    M, R, S = budget.patch_points, budget.up_ratio, budget.queries
     chosen = rng.choice(len(pools), size=batch, replace=batch > len(pools))
     out: dict[str, list] = {k: [] for k in ("points", "target", "queries", "udf", "grad")}
     for index in chosen:
@@ -292,30 +296,24 @@ def _udf_batch(model: GeoUDFNetwork, dense: torch.Tensor, normals: torch.Tensor,
     return model.udf(queries.reshape(-1, 3), torch.cat(neighbours), torch.cat(neighbour_normals))
 
 
-def train_geoudf(method, shapes: Sequence, budget, seed: int = 0, device=None,
-                 progress: Callable[..., None] | None = None) -> KNNTrainResult:
-    """Train GeoUDF's two stages across ``shapes`` (module docstring) at ``budget`` (a ``KNNBudget``
-    or its name: the training set's pools and density; the architecture and schedule of
-    :func:`geoudf_config`).
+def train_geoudf(method, shapes: Sequence, budget: GeoUDFBudget, seed: int = 0, device=None,
+                 progress: Callable[..., None] | None = None) -> TrainResult:
+    """Train GeoUDF's two stages across ``shapes`` (module docstring) at ``budget`` (its
+    architecture, schedule, training set and cloud density).
 
     ``seed``: the pools, the initialisation (:func:`methods.core.device.seeded_generator`) and every
-    batch draw (``SeedSequence(seed).spawn(2)[1]``): on the CPU the same seed gives the same
+    batch draw (:func:`benchmark.seeding.training_streams`): on the CPU the same seed gives the same
     weights. ``progress(step=..., loss=..., total=pu_steps + rec_steps)`` every ``log_every`` steps.
-    Returns a :class:`methods.pointcloud.knn.training.KNNTrainResult`: ``final_loss`` of stage 2, ``seconds``
+    Returns a :class:`methods.pointcloud.training_set.TrainResult`: ``final_loss`` of stage 2, ``seconds``
     of both step loops, ``samples_per_s`` in training items (patches) per second."""
-    budget = get_knn_budget(budget)
-    config = geoudf_config(budget)
     device = get_device(device)
-    if budget.points_per_item < config.patch_points:
-        raise ValueError(f"geoudf at budget '{budget.name}': points_per_item {budget.points_per_item} < "
-                         f"patch_points {config.patch_points}")
     t0 = time.perf_counter()
-    pools = build_pools(shapes, budget, config, seed)
+    pools = build_pools(shapes, budget, seed)
     pool_seconds = time.perf_counter() - t0
     seeded_generator(seed, device)
-    rng = np.random.default_rng(np.random.SeedSequence(int(seed)).spawn(2)[1])
-    model = make_geoudf_network(**config.network_config()).to(device)
-    T1, T2 = config.pu_steps, config.rec_steps
+    rng = training_streams(seed).batch_rng()
+    model = make_geoudf_network(**budget.network_config()).to(device)
+    T1, T2 = budget.pu_steps, budget.rec_steps
 
     def where(offset: int):
         return lambda i: f"step {offset + i} of {T1 + T2} (method '{method.name}', budget '{budget.name}', seed {seed})"
@@ -327,32 +325,32 @@ def train_geoudf(method, shapes: Sequence, budget, seed: int = 0, device=None,
         return None if progress is None else lambda step, loss: progress(step=offset + step, loss=loss, total=T1 + T2)
 
     def pu_loss(step: int) -> torch.Tensor:
-        b = tensors(draw_items(pools, budget, config, config.pu_batch, False, rng))
+        b = tensors(draw_items(pools, budget, budget.pu_batch, False, rng))
         dense, _ = model.lgr(b["points"], b["choice"])
-        return config.cd_weight * chamfer_loss(dense.flatten(1, 2), b["target"])
+        return budget.cd_weight * chamfer_loss(dense.flatten(1, 2), b["target"])
 
     def rec_loss(step: int) -> torch.Tensor:
-        b = tensors(draw_items(pools, budget, config, config.rec_batch, True, rng))
+        b = tensors(draw_items(pools, budget, budget.rec_batch, True, rng))
         dense, normals = model.lgr(b["points"], b["choice"])
         dense, normals = dense.flatten(1, 2), normals.flatten(1, 2)
         cd = chamfer_loss(dense, b["target"])
         udf, grad = _udf_batch(model, dense.detach(), normals.detach(), b["queries"])
         l1 = (udf - b["udf"].reshape(-1)).abs().mean()
         cosine = (1.0 - (grad * b["grad"].reshape(-1, 3)).sum(-1)).mean()
-        return config.cd_weight * cd + config.udf_weight * l1 + config.grad_weight * cosine
+        return budget.cd_weight * cd + budget.udf_weight * l1 + budget.grad_weight * cosine
 
     seconds = 0.0
     if T1 > 0:
-        optimizer = torch.optim.Adam(model.lgr.parameters(), lr=config.pu_lr)
-        seconds += run_steps(model.lgr, optimizer, T1, pu_loss, log_every=config.log_every, where=where(0),
+        optimizer = torch.optim.Adam(model.lgr.parameters(), lr=budget.pu_lr)
+        seconds += run_steps(model.lgr, optimizer, T1, pu_loss, log_every=budget.log_every, where=where(0),
                              progress=report(0), device=device).seconds
-    optimizer = torch.optim.Adam(model.parameters(), lr=config.rec_lr)
-    result = run_steps(model, optimizer, T2, rec_loss, log_every=config.log_every, where=where(T1),
+    optimizer = torch.optim.Adam(model.parameters(), lr=budget.rec_lr)
+    result = run_steps(model, optimizer, T2, rec_loss, log_every=budget.log_every, where=where(T1),
                        progress=report(T1), device=device)
     seconds += result.seconds
     model.eval()
-    items = T1 * config.pu_batch + T2 * config.rec_batch
-    return KNNTrainResult(model=model, losses=result.losses, seconds=seconds, steps=T1 + T2,
+    items = T1 * budget.pu_batch + T2 * budget.rec_batch
+    return TrainResult(model=model, losses=result.losses, seconds=seconds, steps=T1 + T2,
                           samples_per_s=items / max(seconds, 1e-9), final_loss=result.final_loss,
                           pool_seconds=pool_seconds)
 
@@ -445,7 +443,8 @@ class GeoUDFMethod(OwnNetworkMethod):
     color = "#24347f"
     network_label = "GeoUDF"
     build_network = staticmethod(make_geoudf_network)
-    training_modules = ("methods.pointcloud.geoudf.network", "methods.pointcloud.knn.training")
+    budget_family = "geoudf"
+    training_modules = ("methods.pointcloud.geoudf.network", "methods.pointcloud.training_set")
     parameters = {
         "band": Param(2.0, "grid points within this many h of an upsampled point get the network's UDF", gt=0),
         "cull": Param(2.0, "E-MC tests the cells whose lowest corner has UDF <= cull h", gt=0),
@@ -455,11 +454,8 @@ class GeoUDFMethod(OwnNetworkMethod):
                                  "the input points with PCA normals)"),
     }
 
-    def train_network(self, shapes, budget, seed, device=None, progress=None) -> KNNTrainResult:
+    def train_network(self, shapes, budget, seed, device=None, progress=None) -> TrainResult:
         return train_geoudf(self, shapes, budget, seed=seed, device=device, progress=progress)
-
-    def architecture(self, budget):
-        return geoudf_config(budget)
 
     def reconstruct(self, points, N, device=None, seed=0, model=None) -> Extraction:
         model, device = self.network_on_device(model, device)
@@ -490,7 +486,7 @@ class GeoUDFMethod(OwnNetworkMethod):
             udf[tuple(ijk.T)] = u.astype(np.float64) * FRAME_SCALE
             grad[tuple(ijk.T)] = g
         with stage("emc"):
-            V, Fc, info = edge_marching_cubes(udf, grad, snap=self.params["snap"] * FRAME_SCALE,
-                                              cull=self.params["cull"], near=self.params["near"])
-        info.update(upsampled_points=int(len(dense)), patches=patches, queried_points=int(len(ijk)))
-        return Extraction(V, Fc, info=info)
+            mesh = edge_marching_cubes(udf, grad, snap=self.params["snap"] * FRAME_SCALE,
+                                       cull=self.params["cull"], near=self.params["near"])
+        mesh.info.update(upsampled_points=int(len(dense)), patches=patches, queried_points=int(len(ijk)))
+        return mesh

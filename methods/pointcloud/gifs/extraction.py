@@ -36,10 +36,12 @@ import numpy as np
 from skimage.measure import marching_cubes as _skimage_marching_cubes
 
 from benchmark.grid import LOWER, ijk_axis_to_edge_index, spacing
+from methods.base import Extraction
+from methods.extractors.mesh_ops import drop_unreferenced_vertices
 from methods.extractors.marching_cubes import empty_mesh
 
 __all__ = ["CORNERS", "CORNER_PAIRS", "CUBE_EDGES", "CUBE_EDGE_AXES", "PARTITIONS", "UDF_FLOOR", "corner_signs",
-           "local_marching_cubes", "extract_gifs_mesh"]
+           "local_marching_cubes", "flag_split_marching_cubes"]
 
 #: (8, 3) int offsets (di, dj, dk) of a cube's corners, corner c = 4 di + 2 dj + dk.
 CORNERS = np.array(list(itertools.product((0, 1), repeat=3)), dtype=np.int64)
@@ -145,13 +147,11 @@ def local_marching_cubes(cubes: np.ndarray, corner_values: np.ndarray, N: int) -
     _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
     faces = inverse.reshape(-1)[faces]
     faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
-    used, faces = np.unique(faces, return_inverse=True)
-    vertices = LOWER + index[first[used]] * spacing(N)
-    return vertices, faces.reshape(-1, 3).astype(np.int64)
+    return drop_unreferenced_vertices(LOWER + index[first] * spacing(N), faces.astype(np.int64))
 
 
-def extract_gifs_mesh(cubes: np.ndarray, flags: np.ndarray, corner_udf: np.ndarray, N: int,
-                      flag_threshold: float = 0.5) -> tuple[np.ndarray, np.ndarray, dict]:
+def flag_split_marching_cubes(cubes: np.ndarray, flags: np.ndarray, corner_udf: np.ndarray, N: int,
+                              flag_threshold: float = 0.5) -> Extraction:
     """The GIFS mesh of the given cubes (module docstring).
 
     Parameters
@@ -164,8 +164,8 @@ def extract_gifs_mesh(cubes: np.ndarray, flags: np.ndarray, corner_udf: np.ndarr
 
     Returns
     -------
-    vertices (V, 3) float64 canonical frame, faces (F, 3) int64, info {"surface_cubes": cubes with
-    corners on both sides}.
+    :class:`methods.base.Extraction`: vertices (V, 3) float64 canonical frame, faces (F, 3) int64,
+    info {"surface_cubes": cubes with corners on both sides}.
     """
     flags = np.asarray(flags, dtype=np.float32)
     corner_udf = np.asarray(corner_udf, dtype=np.float64)
@@ -175,4 +175,4 @@ def extract_gifs_mesh(cubes: np.ndarray, flags: np.ndarray, corner_udf: np.ndarr
     values = signs * np.maximum(corner_udf, UDF_FLOOR)
     surface = (signs > 0).any(axis=1)
     V, F = local_marching_cubes(np.asarray(cubes)[surface], values[surface], N)
-    return V, F, {"surface_cubes": int(surface.sum())}
+    return Extraction(V, F, {"surface_cubes": int(surface.sum())})

@@ -6,7 +6,7 @@ features sampled at query points; one decoder gives a point's UDF, another the f
 points (u, v): ~1 where the surface separates them (the segment u-v crosses it), ~0 where not.
 
 Training (:func:`train_gifs`): once across the training shapes, on the pools of
-:class:`methods.pointcloud.knn.training.TrainingPools`: the shared five-group sampler's segments (u, v) =
+:class:`methods.pointcloud.training_set.TrainingPools`: the shared five-group sampler's segments (u, v) =
 (c + e1, c + e2), the same construction as the authors' pairs (a centre, two Gaussian offsets of
 the same sigma), labelled by the exact fields: flag = the segment hits the mesh (``ExactFields.segments``,
 the authors' CGAL ``do_intersect``), UDF of u and of v (``ExactFields.udf``). Each step takes
@@ -24,7 +24,7 @@ Reconstruction (:meth:`GIFSMethod.reconstruct`), on the run's grid (N points per
 3. queried cubes: the candidates with a corner UDF below ``udf_threshold`` h (the authors keep a
    cell when its smallest corner UDF is below one cell in their units, 2 h here); the flags of their
    28 corner pairs;
-4. :func:`methods.pointcloud.gifs.extraction.extract_gifs_mesh`: per cube the corner partition that best
+4. :func:`methods.pointcloud.gifs.extraction.flag_split_marching_cubes`: per cube the corner partition that best
    agrees with its flags, signed corner values +-UDF, marching cubes per cube, welded vertices;
 5. optionally (``refine_steps`` > 0; the authors' ``mesh_refine``, off in their released
    ``generate_mesh``): RMSprop on the vertex positions minimising the mean squared UDF of one random
@@ -41,45 +41,50 @@ import torch
 
 from benchmark.grid import LOWER, spacing
 from benchmark.params import Param, check_fields, setting
+from benchmark.seeding import training_streams
 from benchmark.sampler import group_counts
 from benchmark.timing import stage
 from methods.base import Extraction, register_method
+from methods.core.budgets import register_budget_family
 from methods.core.device import get_device, seeded_generator
-from methods.pointcloud.gifs.extraction import CORNER_PAIRS, CORNERS, extract_gifs_mesh
+from methods.pointcloud.gifs.extraction import CORNER_PAIRS, CORNERS, flag_split_marching_cubes
 from methods.pointcloud.gifs.network import GIFSNetwork, make_gifs_network, voxelize_cloud
-from methods.pointcloud.knn.query import band_points
-from methods.pointcloud.knn.training import KNNTrainResult, TrainingPools, get_knn_budget
+from methods.pointcloud.neighbourhoods import band_points
+from methods.pointcloud.training_set import TrainingPools, TrainingSet, TrainResult
 from methods.pointcloud.own_network import OwnNetworkMethod
 from methods.core.training_loop import run_steps
 
-__all__ = ["GIFSConfig", "GIFS_CONFIGS", "gifs_config", "draw_pairs", "draw_batch", "gifs_loss", "train_gifs",
+__all__ = ["GIFSBudget", "GIFS_FAMILY", "draw_pairs", "draw_batch", "gifs_loss", "train_gifs",
            "encode_cloud", "point_udf", "cube_flags", "refine_vertices", "GIFSMethod"]
 
 
 @dataclass(frozen=True)
-class GIFSConfig:
-    """GIFS's architecture and schedule at one budget (:data:`GIFS_CONFIGS`, keyed by the
-    :class:`methods.pointcloud.knn.network.KNNBudget` name; the budget gives the training set, its pools and
-    the cloud size of an item)."""
+class GIFSBudget(TrainingSet):
+    """GIFS's budget: its architecture and schedule, the cloud of a training item
+    (``points_per_item`` points of its shape's pool) and its training set (:class:`TrainingSet`)."""
 
     name: str = setting(Param(kind=str, help="budget name"))
-    resolution: int = setting(Param(kind=int, help="voxel grid points per axis of the input", ge=2))
-    channels: tuple = setting(Param(kind=tuple, item=int, help="encoder widths (full resolution, then / 2 each)"))
-    hidden: int = setting(Param(kind=int, help="decoder width", ge=1))
-    batch: int = setting(Param(kind=int, help="training items (shapes) per step", ge=1))
-    pairs: int = setting(Param(kind=int, help="labelled pairs per training item", ge=2))
-    steps: int = setting(Param(kind=int, help="optimizer steps", ge=1))
-    lr: float = setting(Param(1e-4, "Adam learning rate (constant)", gt=0))
-    udf_weight: float = setting(Param(5.0, "weight of the UDF term (the authors' 10 in half units)", ge=0))
+    points_per_item: int = setting(Param(kind=int, help="input points of a training item's cloud", ge=1), override=True)
+    resolution: int = setting(Param(kind=int, help="voxel grid points per axis of the input", ge=2), override=True)
+    channels: tuple = setting(Param(kind=tuple, item=int, help="encoder widths (full resolution, then / 2 each)"), override=True)
+    hidden: int = setting(Param(kind=int, help="decoder width", ge=1), override=True)
+    batch: int = setting(Param(kind=int, help="training items (shapes) per step", ge=1), override=True)
+    pairs: int = setting(Param(kind=int, help="labelled pairs per training item", ge=2), override=True)
+    steps: int = setting(Param(kind=int, help="optimizer steps", ge=1), override=True)
+    lr: float = setting(Param(1e-4, "Adam learning rate (constant)", gt=0), override=True)
+    udf_weight: float = setting(Param(5.0, "weight of the UDF term (the authors' 10 in half units)", ge=0), override=True)
     udf_clamp: float = setting(Param(0.2, "UDFs are clamped at this (canonical units; the authors' 0.1 in half units)",
-                                     gt=0))
+                                     gt=0), override=True)
     log_every: int = setting(Param(50, "steps between loss reports", ge=1))
 
     def __post_init__(self):
-        check_fields(self, f"gifs config '{self.name}'")
+        check_fields(self, f"gifs budget '{self.name}'")
         if self.resolution % (2 ** (len(self.channels) - 1)):
-            raise ValueError(f"gifs config '{self.name}': resolution {self.resolution} is not a multiple of "
+            raise ValueError(f"gifs budget '{self.name}': resolution {self.resolution} is not a multiple of "
                              f"2^{len(self.channels) - 1}")
+        if self.pool_points < self.points_per_item:
+            raise ValueError(f"gifs budget '{self.name}': pool_points {self.pool_points} < points_per_item "
+                             f"{self.points_per_item} (an item's cloud is drawn without replacement)")
 
     def network_config(self) -> dict:
         """Keyword arguments of :func:`methods.pointcloud.gifs.network.make_gifs_network`."""
@@ -93,22 +98,18 @@ class GIFSConfig:
 #: within ~15 min on one core: voxel grid 96^3 (1.3 h at N = 128), widths 8, 16, 32, 64, 64, 64, decoders
 #: of width 128, items of 2,048 pairs, batches of 2, Adam 1e-4 (1e-6 learns nothing in a thousand steps),
 #: 900 steps. *tiny*: tests (seconds).
-GIFS_CONFIGS: dict[str, GIFSConfig] = {c.name: c for c in (
-    GIFSConfig("paper", resolution=256, channels=(16, 32, 64, 128, 128, 128), hidden=256, batch=2, pairs=50_000,
-               steps=400_000, lr=1e-6, log_every=500),
-    GIFSConfig("cpu", resolution=96, channels=(8, 16, 32, 64, 64, 64), hidden=128, batch=2, pairs=2_048,
-               steps=900, lr=1e-4, log_every=50),
-    GIFSConfig("tiny", resolution=32, channels=(8, 16, 32), hidden=32, batch=2, pairs=1_024, steps=200, lr=1e-3,
-               log_every=25),
-)}
+GIFS_FAMILY = register_budget_family("gifs", (
+    GIFSBudget("paper", resolution=256, channels=(16, 32, 64, 128, 128, 128), hidden=256, batch=2, pairs=50_000,
+               steps=400_000, lr=1e-6, log_every=500,
+               points_per_item=40_000, training_shapes=100, pool_samples=1_000_000, pool_points=1_000_000),
+    GIFSBudget("cpu", resolution=96, channels=(8, 16, 32, 64, 64, 64), hidden=128, batch=2, pairs=2_048,
+               steps=900, lr=1e-4, log_every=50,
+               points_per_item=40_000, training_shapes=24, pool_samples=200_000, pool_points=200_000),
+    GIFSBudget("tiny", resolution=32, channels=(8, 16, 32), hidden=32, batch=2, pairs=1_024, steps=200, lr=1e-3,
+               log_every=25,
+               points_per_item=10_000, training_shapes=4, pool_samples=20_000, pool_points=20_000)
+))
 
-
-def gifs_config(budget) -> GIFSConfig:
-    """The :class:`GIFSConfig` of a budget (its name, or a ``KNNBudget``)."""
-    name = budget if isinstance(budget, str) else budget.name
-    if name not in GIFS_CONFIGS:
-        raise ValueError(f"gifs has no configuration for budget '{name}'; known: {', '.join(GIFS_CONFIGS)}")
-    return GIFS_CONFIGS[name]
 
 
 # --------------------------------------------------------------------------------------------------
@@ -136,19 +137,19 @@ def draw_pairs(flag: np.ndarray, group: np.ndarray, count: int, rng: np.random.G
     return np.concatenate(rows)
 
 
-def draw_batch(pools: TrainingPools, budget, config: GIFSConfig, rng: np.random.Generator):
+def draw_batch(pools: TrainingPools, budget: GIFSBudget, rng: np.random.Generator):
     """One training batch: voxel grids (B, R, R, R), pairs (B, pairs, 6), UDF labels (B, pairs, 2)
-    and flag labels (B, pairs), float32; B = ``config.batch`` distinct training shapes (repeats only
+    and flag labels (B, pairs), float32; B = ``budget.batch`` distinct training shapes (repeats only
     when there are fewer), each with a cloud of ``budget.points_per_item`` points of its pool (without
     replacement) and pairs by :func:`draw_pairs`."""
     n = len(pools.pools)
-    chosen = rng.choice(n, size=config.batch, replace=config.batch > n)
+    chosen = rng.choice(n, size=budget.batch, replace=budget.batch > n)
     voxels, pairs, udfs, flags = [], [], [], []
     for index in chosen:
         pool = pools.pools[index]
         cloud = pool.cloud[rng.choice(len(pool.cloud), size=budget.points_per_item, replace=False)]
-        rows = draw_pairs(pool.targets["flag"], pool.targets["group"], config.pairs, rng)
-        voxels.append(voxelize_cloud(cloud, config.resolution))
+        rows = draw_pairs(pool.targets["flag"], pool.targets["group"], budget.pairs, rng)
+        voxels.append(voxelize_cloud(cloud, budget.resolution))
         pairs.append(pool.anchors[rows].reshape(-1, 6))
         udfs.append(np.stack([pool.targets["udf_u"][rows], pool.targets["udf_v"][rows]], axis=1))
         flags.append(pool.targets["flag"][rows])
@@ -162,36 +163,34 @@ def gifs_loss(udf_hat: torch.Tensor, flag_hat: torch.Tensor, udf: torch.Tensor, 
     return udf_weight * udf_term + (flag_hat - flag).abs().mean()
 
 
-def train_gifs(method, shapes: Sequence, budget, seed: int = 0, device=None,
-               progress: Callable[..., None] | None = None) -> KNNTrainResult:
-    """Train GIFS across ``shapes`` (module docstring) at ``budget`` (a ``KNNBudget`` or its name:
-    its training pools and item clouds; the architecture and schedule of :func:`gifs_config`).
+def train_gifs(method, shapes: Sequence, budget: GIFSBudget, seed: int = 0, device=None,
+               progress: Callable[..., None] | None = None) -> TrainResult:
+    """Train GIFS across ``shapes`` (module docstring) at ``budget`` (its architecture, schedule,
+    item clouds and training pools).
 
     ``seed``: the pools, the network's initialisation (:func:`methods.core.device.seeded_generator`) and
-    every batch draw (``SeedSequence(seed).spawn(2)[1]``); on the CPU the same seed gives the same
+    every batch draw (:func:`benchmark.seeding.training_streams`); on the CPU the same seed gives the same
     weights. ``progress(step=..., loss=..., total=steps)`` every ``log_every`` steps. Returns a
-    :class:`methods.pointcloud.knn.training.KNNTrainResult` (model in eval mode)."""
-    budget = get_knn_budget(budget)
-    config = gifs_config(budget)
+    :class:`methods.pointcloud.training_set.TrainResult` (model in eval mode)."""
     device = get_device(device)
     pools = TrainingPools(method, shapes, budget, seed)
     seeded_generator(seed, device)
-    rng = np.random.default_rng(np.random.SeedSequence(int(seed)).spawn(2)[1])
-    model = make_gifs_network(**config.network_config()).to(device)
-    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
+    rng = training_streams(seed).batch_rng()
+    model = make_gifs_network(**budget.network_config()).to(device)
+    optimizer = torch.optim.Adam(model.parameters(), lr=budget.lr)
 
     def step_loss(step: int) -> torch.Tensor:
-        voxels, pairs, udf, flag = (torch.from_numpy(a).to(device) for a in draw_batch(pools, budget, config, rng))
+        voxels, pairs, udf, flag = (torch.from_numpy(a).to(device) for a in draw_batch(pools, budget, rng))
         udf_hat, flag_hat = model(pairs, voxels)
-        return gifs_loss(udf_hat, flag_hat, udf, flag, config.udf_weight, config.udf_clamp)
+        return gifs_loss(udf_hat, flag_hat, udf, flag, budget.udf_weight, budget.udf_clamp)
 
-    T = config.steps
+    T = budget.steps
     report = None if progress is None else lambda step, loss: progress(step=step, loss=loss, total=T)
-    result = run_steps(model, optimizer, T, step_loss, log_every=config.log_every,
+    result = run_steps(model, optimizer, T, step_loss, log_every=budget.log_every,
                        where=lambda i: f"step {i} of {T} (method '{method.name}', budget '{budget.name}', seed {seed})",
                        progress=report, device=device)
-    return KNNTrainResult(model=model, losses=result.losses, seconds=result.seconds, steps=T,
-                          samples_per_s=T * config.batch * config.pairs / max(result.seconds, 1e-9),
+    return TrainResult(model=model, losses=result.losses, seconds=result.seconds, steps=T,
+                          samples_per_s=T * budget.batch * budget.pairs / max(result.seconds, 1e-9),
                           final_loss=result.final_loss, pool_seconds=pools.seconds)
 
 
@@ -280,7 +279,8 @@ class GIFSMethod(OwnNetworkMethod):
     color = "#d4a017"
     network_label = "GIFS"
     build_network = staticmethod(make_gifs_network)
-    training_modules = ("methods.pointcloud.gifs.network", "methods.pointcloud.knn.training")
+    budget_family = "gifs"
+    training_modules = ("methods.pointcloud.gifs.network", "methods.pointcloud.training_set")
     parameters = {
         "band": Param(3.0, "cubes with a corner within this many h of an input point are candidates", gt=0),
         "udf_threshold": Param(2.0, "cubes whose smallest corner UDF is below this many h are queried", gt=0),
@@ -297,11 +297,8 @@ class GIFSMethod(OwnNetworkMethod):
         return {"flag": hit.astype(np.float32), "udf_u": fields.udf(u).astype(np.float32),
                 "udf_v": fields.udf(v).astype(np.float32), "group": np.asarray(samples.group, dtype=np.float32)}
 
-    def train_network(self, shapes, budget, seed, device=None, progress=None) -> KNNTrainResult:
+    def train_network(self, shapes, budget, seed, device=None, progress=None) -> TrainResult:
         return train_gifs(self, shapes, budget, seed=seed, device=device, progress=progress)
-
-    def architecture(self, budget):
-        return gifs_config(budget)
 
     def reconstruct(self, points, N, device=None, seed=0, model=None) -> Extraction:
         model, device = self.network_on_device(model, device)
@@ -330,7 +327,8 @@ class GIFSMethod(OwnNetworkMethod):
         with stage("flags"):
             flags = cube_flags(model, grids, cubes, N, device)
         with stage("mesh"):
-            V, F, info = extract_gifs_mesh(cubes, flags, corner_udf, N, self.params["flag_threshold"])
+            mesh = flag_split_marching_cubes(cubes, flags, corner_udf, N, self.params["flag_threshold"])
+            V, F, info = mesh.vertices, mesh.faces, mesh.info
         if self.params["refine_steps"] > 0:
             with stage("refine"):
                 V = refine_vertices(model, grids, V, F, self.params["refine_steps"], self.params["refine_lr"],

@@ -2,7 +2,7 @@
 
 The reconstruction task trains each learned method *once* across many shapes and then
 reconstructs a surface from a raw point cloud (no normals). The learned methods share one encoder
-design, one training set and one training budget (:data:`KNN_BUDGETS`), so a comparison between them
+design, one training set and one training budget (:class:`methods.pointcloud.knn.training.KNNBudget`), so a comparison between them
 is about the representation, not the network:
 
 * ``sals-knn``: a segment (u, v) -> two logits (o, s)  (:class:`SegmentKNNNetwork`);
@@ -11,8 +11,8 @@ is about the representation, not the network:
 
 Neighbourhoods
 --------------
-:func:`knn_neighbourhoods` gives the K nearest input points of each query by one exact KD-tree query
-(a point's query is the point; a segment's is its midpoint m = (u + v) / 2, :func:`segment_neighbourhoods`).
+:func:`methods.pointcloud.neighbourhoods.knn_neighbourhoods` gives the K nearest input points of each query by one exact KD-tree query
+(a point's query is the point; a segment's is its midpoint m = (u + v) / 2, :func:`methods.pointcloud.neighbourhoods.segment_neighbourhoods`).
 The network sees only those K points: there is no global feature, the networks are purely local.
 
 Local encoder
@@ -52,76 +52,16 @@ scaled by :data:`methods.core.network.OUTPUT_INIT_SCALE` (0.01) and bias zeroed,
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-
-import numpy as np
 import torch
-from pykdtree.kdtree import KDTree
 from torch import nn
 
-from benchmark.params import Param, check_fields, params_of, setting
-from benchmark.registry import Registry
 from methods.core.network import OUTPUT_INIT_SCALE
 
-__all__ = ["NEGATIVE_SLOPE", "KINDS", "knn_neighbourhoods", "segment_neighbourhoods", "LocalEncoder",
-           "RegressionHead", "SegmentKNNNetwork", "PointKNNNetwork", "make_knn_network", "KNNBudget",
-           "KNN_BUDGETS", "KNN_BUDGET_PARAMS"]
+__all__ = ["NEGATIVE_SLOPE", "KINDS", "LocalEncoder",
+           "RegressionHead", "SegmentKNNNetwork", "PointKNNNetwork", "make_knn_network"]
 
 #: Slope of the LeakyReLU after every hidden layer (the paper's 0.2).
 NEGATIVE_SLOPE = 0.2
-
-
-# --------------------------------------------------------------------------------------------------
-# Neighbourhoods
-# --------------------------------------------------------------------------------------------------
-
-def knn_neighbourhoods(points: np.ndarray, queries: np.ndarray, k: int) -> np.ndarray:
-    """Indices of the ``k`` nearest input points of every query, nearest first.
-
-    One exact KD-tree query (pykdtree, the project's KD-tree: multi-threaded through OpenMP,
-    deterministic, the same neighbours as scipy's cKDTree). Coordinates are searched in float64, so the
-    neighbours are those of the exact Euclidean distance (a tie, probability 0 for sampled points,
-    goes to either point).
-
-    Parameters
-    ----------
-    points : (P, 3) array_like, the input point cloud, ``P >= k``.
-    queries : (Q, 3) array_like, the query points (a segment's query is its midpoint,
-        :func:`segment_neighbourhoods`).
-    k : neighbours per query, ``k >= 1``.
-
-    Returns
-    -------
-    (Q, k) int64 ndarray: row i lists the indices into ``points`` of the k points nearest
-    ``queries[i]``, by increasing distance.
-    """
-    points = np.ascontiguousarray(points, dtype=np.float64)
-    queries = np.ascontiguousarray(queries, dtype=np.float64)
-    if points.ndim != 2 or points.shape[1] != 3 or queries.ndim != 2 or queries.shape[1] != 3:
-        raise ValueError(f"points and queries must be (n, 3) arrays, got {points.shape} and {queries.shape}")
-    k = int(k)
-    if k < 1:
-        raise ValueError(f"k must be >= 1, got {k}")
-    if len(points) < k:
-        raise ValueError(f"a {k}-NN neighbourhood needs at least {k} input points, got {len(points)}")
-    if len(queries) == 0:
-        return np.zeros((0, k), dtype=np.int64)
-    _, idx = KDTree(points).query(queries, k=k)
-    return np.asarray(idx, dtype=np.int64).reshape(len(queries), k)  # k = 1: pykdtree returns (Q,)
-
-
-def segment_neighbourhoods(points: np.ndarray, segments: np.ndarray, k: int) -> np.ndarray:
-    """The ``k`` nearest input points of each segment's midpoint m = (u + v) / 2.
-
-    ``segments``: (S, 2, 3) or (S, 6) endpoints ``[u, v]``. Returns (S, k) int64 indices into
-    ``points`` (see :func:`knn_neighbourhoods`).
-    """
-    segments = np.asarray(segments, dtype=np.float64)
-    if segments.ndim == 2 and segments.shape[1] == 6:
-        segments = segments.reshape(-1, 2, 3)
-    if segments.ndim != 3 or segments.shape[1:] != (2, 3):
-        raise ValueError(f"segments must be (S, 2, 3) or (S, 6), got {segments.shape}")
-    return knn_neighbourhoods(points, 0.5 * (segments[:, 0] + segments[:, 1]), k)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -267,93 +207,3 @@ def make_knn_network(kind: str, **config) -> nn.Module:
     if kind not in KINDS:
         raise ValueError(f"unknown K-NN network kind '{kind}'; known: {', '.join(KINDS)}")
     return KINDS[kind](**config)
-
-
-# --------------------------------------------------------------------------------------------------
-# Budgets
-# --------------------------------------------------------------------------------------------------
-
-@dataclass(frozen=True)
-class KNNBudget:
-    """The one training budget every learned reconstruction method trains with.
-
-    ``k``: neighbours per query. ``encoder_width``/``encoder_depth``, ``head_width``/``head_depth``:
-    the network (:class:`LocalEncoder`, :class:`RegressionHead`; depth counts the hidden
-    ``width -> width`` layers). Each of the ``steps`` optimizer steps takes ``shapes_per_batch``
-    training shapes; each such item draws ``points_per_item`` input points (its cloud, from which the
-    neighbourhoods are searched) and ``samples_per_item`` labelled samples (segments for ``sals-knn``,
-    query points for ``udf-knn``/``occ-knn``), so a batch holds ``shapes_per_batch x samples_per_item``
-    samples. AdamW at the constant ``lr`` with ``weight_decay`` (the paper states no decay: torch's
-    default 0.01). ``log_every``: steps between loss reports.
-
-    The training set (:mod:`methods.pointcloud.knn.training`): ``training_shapes`` built-in parts (plus any
-    extra mesh folders the caller adds); per training shape a pool of ``pool_samples`` labelled
-    samples (the shared sampler, labelled by the exact fields) and a pool of
-    ``pool_points`` surface points, from which each item draws its ``samples_per_item`` samples
-    (with replacement) and its ``points_per_item`` input points (without replacement, so
-    ``pool_points >= points_per_item``).
-    """
-
-    name: str = setting(Param(kind=str, help="budget name"))
-    k: int = setting(Param(kind=int, help="neighbours per query", ge=1), override=True)
-    encoder_width: int = setting(Param(kind=int, help="width of the local encoders", ge=1), override=True)
-    encoder_depth: int = setting(Param(kind=int, help="hidden layers of the local encoders", ge=0), override=True)
-    head_width: int = setting(Param(kind=int, help="width of the regression head", ge=1), override=True)
-    head_depth: int = setting(Param(kind=int, help="hidden layers of the regression head", ge=0), override=True)
-    steps: int = setting(Param(kind=int, help="optimizer steps", ge=1), override=True)
-    shapes_per_batch: int = setting(Param(kind=int, help="training shapes per batch", ge=1))
-    samples_per_item: int = setting(Param(kind=int, help="labelled samples per shape of a batch", ge=1),
-                                    override=True)
-    points_per_item: int = setting(Param(kind=int, help="input points per shape of a batch", ge=1), override=True)
-    lr: float = setting(Param(1e-3, "AdamW learning rate (constant)", gt=0), override=True)
-    weight_decay: float = setting(Param(0.01, "AdamW weight decay (torch's default)", ge=0))
-    log_every: int = setting(Param(100, "steps between loss reports", ge=1))
-    training_shapes: int = setting(Param(100, "built-in training parts", ge=1), override=True)
-    pool_samples: int = setting(Param(1_000_000, "labelled samples per training shape", ge=1), override=True)
-    pool_points: int = setting(Param(1_000_000, "surface points per training shape", ge=1), override=True)
-
-    def __post_init__(self):
-        check_fields(self, f"knn budget '{self.name}'")
-        if self.points_per_item < self.k:
-            raise ValueError(f"knn budget '{self.name}': points_per_item {self.points_per_item} < k {self.k}")
-        if self.pool_points < self.points_per_item:
-            raise ValueError(f"knn budget '{self.name}': pool_points {self.pool_points} < points_per_item "
-                             f"{self.points_per_item} (an item's cloud is drawn without replacement)")
-
-    def network_config(self) -> dict:
-        """The network sizes, for ``make_knn_network(kind, out_dim=..., **budget.network_config())``."""
-        return dict(encoder_width=self.encoder_width, encoder_depth=self.encoder_depth, head_width=self.head_width,
-                    head_depth=self.head_depth)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-
-#: The K-NN budgets (the measurements behind them: docs/PERFORMANCE.md, "K-NN training"):
-#: *paper*: the paper's K-NN network (K = 20; encoders 4 -> 256, 4 x 256, 256 -> 256; head 512 -> 256,
-#: 4 x 256, 256 -> out; batches of 4 shapes x 5,120 samples, each item with 40k input points; AdamW
-#: 1e-3 constant, 10k steps; 100 training shapes, 1M labelled samples and 1M surface points each; GPU
-#: scale). *cpu*: one learned method trains in about 20 min on a 2-core machine: the paper's K and
-#: cloud size (the local encoder sees the density it is tested at), width 64 with 2 hidden layers in
-#: each encoder and the head, batches of 4 shapes x 1,024 samples, 1,500 steps, 24 built-in training
-#: parts with pools of 200k samples and 200k surface points. *tiny*: tests (seconds): K = 16, width 32,
-#: one hidden layer, lr 3e-3, 400 steps of 2 x 256 samples, 4 parts, pools of 20k, clouds of 10k points
-#: (fewer points do not locate the surface to a fraction of a segment's length: the segment network
-#: then cannot learn its s).
-KNN_BUDGETS: Registry[KNNBudget] = Registry("knn budget")
-
-#: K-NN budget values a run may override (``--budget-param``, sweep keys ``budget.NAME`` of the
-#: reconstruct task, e.g. the paper's K ablation ``budget.k=10,20,50``), typed by the fields' own Params.
-KNN_BUDGET_PARAMS: dict[str, Param] = params_of(KNNBudget, override=True)
-for _budget in (
-    KNNBudget("paper", k=20, encoder_width=256, encoder_depth=4, head_width=256, head_depth=4, steps=10_000,
-              shapes_per_batch=4, samples_per_item=5_120, points_per_item=40_000, lr=1e-3, log_every=100,
-              training_shapes=100, pool_samples=1_000_000, pool_points=1_000_000),
-    KNNBudget("cpu", k=20, encoder_width=64, encoder_depth=2, head_width=64, head_depth=2, steps=1_500,
-              shapes_per_batch=4, samples_per_item=1_024, points_per_item=40_000, lr=1e-3, log_every=50,
-              training_shapes=24, pool_samples=200_000, pool_points=200_000),
-    KNNBudget("tiny", k=16, encoder_width=32, encoder_depth=1, head_width=32, head_depth=1, steps=400,
-              shapes_per_batch=2, samples_per_item=256, points_per_item=10_000, lr=3e-3, log_every=50,
-              training_shapes=4, pool_samples=20_000, pool_points=20_000),
-):
-    KNN_BUDGETS.register(_budget.name, _budget)

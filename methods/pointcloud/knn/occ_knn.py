@@ -28,7 +28,8 @@ from benchmark.grid import spacing
 from benchmark.timing import stage
 from methods.base import Extraction, register_method
 from methods.pointcloud.knn.training import KNNTrainedMethod
-from methods.pointcloud.knn.query import band_points, evaluate_knn, knn_k
+from methods.pointcloud.knn.query import evaluate_knn, knn_k
+from methods.pointcloud.neighbourhoods import band_points
 from methods.extractors.marching_cubes import far_occupancy, marching_cubes_grid
 from benchmark.params import Param
 from benchmark.grid import point_inputs
@@ -56,8 +57,7 @@ class OccKNNMethod(KNNTrainedMethod):
         return F.binary_cross_entropy_with_logits(prediction[:, 0], targets["occupancy"])
 
     def reconstruct(self, points, N, device=None, seed=0, model=None) -> Extraction:
-        if model is None:
-            raise ValueError("occ-knn reconstructs with a trained network: none given")
+        model, device = self.network_on_device(model, device)
         with stage("band"):
             ijk = band_points(points, N, self.params["band"] * spacing(N))
         with stage("field"):
@@ -66,5 +66,5 @@ class OccKNNMethod(KNNTrainedMethod):
             known[tuple(ijk.T)] = True
             volume = far_occupancy(known)
             volume[tuple(ijk.T)] = expit(out[:, 0])
-        V, Fc = marching_cubes_grid(volume, 0.5, inside="high")
-        return Extraction(V, Fc, info={"queried_points": int(len(ijk))})
+        mesh = marching_cubes_grid(volume, 0.5, inside="high")
+        return Extraction(mesh.vertices, mesh.faces, info={"queried_points": int(len(ijk))})

@@ -1,10 +1,7 @@
-"""Grid queries of the K-NN reconstruction networks: which grid points and edges
-lie near the input cloud, and the network on them with the neighbourhoods of the cloud.
+"""Grid queries of the K-NN reconstruction networks: the network on grid points or edges near the
+input cloud (the band of :mod:`methods.pointcloud.neighbourhoods`), each query with its K nearest
+input points.
 
-Only queries near the cloud are evaluated: grid points (or edge midpoints) within ``radius`` of
-their nearest input point (the paper: 4 h); everything farther is "no surface". The band is found
-by marking the voxels holding input points, dilating them by ``ceil(radius / h) + 1`` grid steps
-(scipy.ndimage) and keeping the candidates whose exact KD-tree distance is within the radius.
 A query's K neighbours come from one KD-tree query over all queries (``knn_neighbourhoods``), then
 the network runs in chunks (:func:`chunk_size` queries, eval mode; the KD-tree query is timed as the
 sub-stage ``knn`` of the caller's stage); with ``grad_output`` it also returns
@@ -15,13 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from pykdtree.kdtree import KDTree
-from scipy import ndimage
 
-from benchmark.grid import LOWER, spacing
 from benchmark.timing import stage
-from methods.pointcloud.knn.network import knn_neighbourhoods
-from benchmark.grid import edge_inputs, edges_in_points, point_inputs
+from methods.pointcloud.neighbourhoods import knn_neighbourhoods
 
 #: Queries per forward pass, by device type. Each query carries K point features through the
 #: encoders, so a chunk's activations are ``chunk x K x width`` floats: on a CPU the pass is bound by
@@ -43,39 +36,6 @@ def knn_k(model) -> int:
     if k is None:
         raise ValueError("a K-NN network needs its training neighbour count (model.knn_k); none set")
     return int(k)
-
-
-def nearest_distance(cloud: np.ndarray, queries: np.ndarray) -> np.ndarray:
-    """Distance (Q,) float64 of each query to its nearest point of ``cloud``."""
-    if len(queries) == 0:
-        return np.zeros(0)
-    dist, _ = KDTree(np.asarray(cloud, dtype=np.float64)).query(np.asarray(queries, dtype=np.float64), k=1)
-    return np.asarray(dist, dtype=np.float64).reshape(-1)
-
-
-def near_cloud_mask(cloud: np.ndarray, N: int, radius: float) -> np.ndarray:
-    """(N, N, N) bool: grid points within ``radius`` (canonical units) of the cloud, plus the points
-    of the dilation margin that the exact test then decides (module docstring)."""
-    h = spacing(N)
-    ijk = np.clip(np.rint((np.asarray(cloud) - LOWER) / h).astype(np.int64), 0, N - 1)
-    mask = np.zeros((N, N, N), dtype=bool)
-    mask[tuple(ijk.T)] = True
-    steps = int(np.ceil(radius / h)) + 1
-    ball = np.linalg.norm(np.indices((2 * steps + 1,) * 3) - steps, axis=0) <= steps
-    return ndimage.binary_dilation(mask, structure=ball)
-
-
-def band_points(cloud: np.ndarray, N: int, radius: float) -> np.ndarray:
-    """Integer indices (n, 3) of the grid points within ``radius`` of the cloud."""
-    ijk = np.argwhere(near_cloud_mask(cloud, N, radius))
-    return ijk[nearest_distance(cloud, point_inputs(N, ijk)) <= radius]
-
-
-def band_edges(cloud: np.ndarray, N: int, radius: float) -> np.ndarray:
-    """Flat ids of the grid edges whose midpoint lies within ``radius`` of the cloud."""
-    ids = np.flatnonzero(edges_in_points(N, near_cloud_mask(cloud, N, radius + spacing(N))))
-    ends = edge_inputs(N, ids).reshape(-1, 2, 3)
-    return ids[nearest_distance(cloud, ends.mean(axis=1)) <= radius]
 
 
 def evaluate_knn(model, anchors: np.ndarray, cloud: np.ndarray, k: int, device=None,

@@ -15,14 +15,15 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import expit
 
-from benchmark.grid import spacing
-from benchmark.timing import record, stage
-from methods.base import Extraction, register_method
-from methods.pointcloud.knn.training import KNNTrainedMethod
-from methods.pointcloud.knn.query import band_edges, evaluate_knn, knn_k
+from benchmark.grid import edge_inputs, spacing
 from benchmark.params import Param
-from benchmark.grid import edge_inputs
+from benchmark.timing import stage
+from methods.base import Extraction, register_method
 from methods.core.segment_field import nearer_endpoint_normals, segment_loss, segment_targets
+from methods.extractors.edc import edge_dual_contouring
+from methods.pointcloud.knn.query import evaluate_knn, knn_k
+from methods.pointcloud.knn.training import KNNTrainedMethod
+from methods.pointcloud.neighbourhoods import band_edges
 
 
 @register_method
@@ -51,10 +52,7 @@ class SALSKNNMethod(KNNTrainedMethod):
         return segment_loss(prediction, targets)
 
     def reconstruct(self, points, N, device=None, seed=0, model=None) -> Extraction:
-        from methods.extractors.edc import edc_extract
-
-        if model is None:
-            raise ValueError("sals-knn reconstructs with a trained network: none given")
+        model, device = self.network_on_device(model, device)
         k = knn_k(model)
         with stage("band"):
             ids = band_edges(points, N, self.params["band"] * spacing(N))
@@ -69,7 +67,5 @@ class SALSKNNMethod(KNNTrainedMethod):
             with stage("normals"):
                 _, grad = evaluate_knn(model, segments, points, k, device, grad_output=1)
                 normals = nearer_endpoint_normals(s, grad.reshape(-1, 6))
-        V, F, steps = edc_extract(N, ids, s, normals, qef_cutoff=self.params["qef_cutoff"], faces=self.params["faces"])
-        for step, seconds in steps.items():
-            record(step, seconds)
-        return Extraction(V, F, info={"queried_edges": int(len(hit)), "intersected_edges": int(len(ids))})
+        mesh = edge_dual_contouring(N, ids, s, normals, qef_cutoff=self.params["qef_cutoff"], faces=self.params["faces"])
+        return Extraction(mesh.vertices, mesh.faces, info={"queried_edges": int(len(hit)), "intersected_edges": int(len(ids))})

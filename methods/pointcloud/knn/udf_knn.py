@@ -13,13 +13,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from benchmark.grid import spacing
-from benchmark.timing import record, stage
-from methods.base import Extraction, register_method
-from methods.pointcloud.knn.training import KNNTrainedMethod
-from methods.pointcloud.knn.query import band_points, evaluate_knn, knn_k
+from benchmark.grid import point_inputs, spacing
 from benchmark.params import Param
-from benchmark.grid import point_inputs
+from benchmark.timing import stage
+from methods.base import Extraction, register_method
+from methods.extractors.meshudf import meshudf_marching_cubes
+from methods.pointcloud.knn.query import evaluate_knn, knn_k
+from methods.pointcloud.knn.training import KNNTrainedMethod
+from methods.pointcloud.neighbourhoods import band_points
 
 #: Training targets and predictions are compared clamped at this distance (canonical units).
 DISTANCE_CLAMP = 0.1
@@ -51,10 +52,7 @@ class UDFKNNMethod(KNNTrainedMethod):
         return (prediction[:, 0].clamp(max=DISTANCE_CLAMP) - targets["udf"].clamp(max=DISTANCE_CLAMP)).abs().mean()
 
     def reconstruct(self, points, N, device=None, seed=0, model=None) -> Extraction:
-        from methods.extractors.meshudf import meshudf_extract
-
-        if model is None:
-            raise ValueError("udf-knn reconstructs with a trained network: none given")
+        model, device = self.network_on_device(model, device)
         k, h = knn_k(model), spacing(N)
         with stage("band"):
             ijk = band_points(points, N, self.params["band"] * h)
@@ -74,8 +72,6 @@ class UDFKNNMethod(KNNTrainedMethod):
         def udf_at(x):
             return np.maximum(evaluate_knn(model, np.asarray(x, dtype=np.float32), points, k, device)[0][:, 0], 0.0)
 
-        V, F, steps = meshudf_extract(udf, grad, udf_at=udf_at, face_factor=self.params["face_filter"],
+        mesh = meshudf_marching_cubes(udf, grad, udf_at=udf_at, face_factor=self.params["face_filter"],
                                       sign_rule=self.params["sign_rule"])
-        for step, seconds in steps.items():
-            record(step, seconds)
-        return Extraction(V, F, info={"queried_points": int(len(ijk))})
+        return Extraction(mesh.vertices, mesh.faces, info={"queried_points": int(len(ijk))})

@@ -6,7 +6,7 @@ latent vector; a query's occupancy comes from the latents of its K nearest input
 offsets to them, aggregated with learned attention weights, as two logits (outside, inside).
 
 Training (:func:`train_poco`): once across the training shapes, on the pools of
-:class:`methods.pointcloud.knn.training.TrainingPools` (the shared five-group sampler's points, labelled inside
+:class:`methods.pointcloud.training_set.TrainingPools` (the shared five-group sampler's points, labelled inside
 where the generalised winding number of the mesh exceeds 1/2, ``ExactFields.occupancy``, and
 area-uniform surface points). Each step takes ``batch`` items; an item is a training shape's cloud of
 ``input_points`` surface points (drawn without replacement from its pool) and ``queries`` labelled
@@ -42,45 +42,48 @@ from benchmark.grid import LOWER, spacing
 from benchmark.params import Param, check_fields, setting
 from benchmark.sampler import GROUPS
 from benchmark.timing import stage
+from benchmark.grid import point_inputs
+from benchmark.seeding import training_streams
 from methods.base import Extraction, register_method
+from methods.core.budgets import register_budget_family
 from methods.core.device import get_device, seeded_generator
-from methods.pointcloud.knn.network import knn_neighbourhoods
-from methods.pointcloud.knn.query import band_points
-from methods.pointcloud.knn.training import KNNTrainResult, TrainingPools, get_knn_budget
+from methods.core.training_loop import run_steps
 from methods.extractors.marching_cubes import far_occupancy, marching_cubes_grid
+from methods.pointcloud.neighbourhoods import band_points, knn_neighbourhoods
 from methods.pointcloud.own_network import OwnNetworkMethod
 from methods.pointcloud.poco.network import POCONetwork, batch_structures, cloud_structure, make_poco_network
-from benchmark.grid import point_inputs
-from methods.core.training_loop import run_steps
+from methods.pointcloud.training_set import TrainingPools, TrainingSet, TrainResult
 
-__all__ = ["POCOConfig", "POCO_CONFIGS", "poco_config", "random_rotation", "draw_batch", "train_poco",
+__all__ = ["POCOBudget", "POCO_FAMILY", "random_rotation", "draw_batch", "train_poco",
            "point_latents", "inside_probability", "refine_vertices", "POCOMethod"]
 
 
 @dataclass(frozen=True)
-class POCOConfig:
-    """POCO's architecture and schedule at one budget (:data:`POCO_CONFIGS`, keyed by the
-    :class:`methods.pointcloud.knn.network.KNNBudget` name; the budget gives the training set and its pools)."""
+class POCOBudget(TrainingSet):
+    """POCO's budget: its architecture and schedule, and its training set (:class:`TrainingSet`)."""
 
     name: str = setting(Param(kind=str, help="budget name"))
-    hidden: int = setting(Param(kind=int, help="backbone width at level 0 (doubles per level)", ge=2))
-    levels: int = setting(Param(kind=int, help="subsampled backbone levels (ratio 1/4 each)", ge=0))
-    conv_k: int = setting(Param(kind=int, help="neighbours of an FKAConv support point", ge=1))
-    latent: int = setting(Param(kind=int, help="latent vector size per input point", ge=1))
-    decoder_k: int = setting(Param(kind=int, help="input points a query's occupancy aggregates", ge=1))
-    heads: int = setting(Param(kind=int, help="attention heads of the decoder", ge=1))
-    input_points: int = setting(Param(kind=int, help="points of a training item's cloud and of an inference view", ge=1))
-    queries: int = setting(Param(kind=int, help="labelled query points per training item", ge=1))
-    batch: int = setting(Param(kind=int, help="training items per step", ge=1))
-    steps: int = setting(Param(kind=int, help="optimizer steps", ge=1))
-    lr: float = setting(Param(1e-3, "Adam learning rate (constant)", gt=0))
-    rotate: bool = setting(Param(True, "turn every training item by a random rotation"))
+    hidden: int = setting(Param(kind=int, help="backbone width at level 0 (doubles per level)", ge=2), override=True)
+    levels: int = setting(Param(kind=int, help="subsampled backbone levels (ratio 1/4 each)", ge=0), override=True)
+    conv_k: int = setting(Param(kind=int, help="neighbours of an FKAConv support point", ge=1), override=True)
+    latent: int = setting(Param(kind=int, help="latent vector size per input point", ge=1), override=True)
+    decoder_k: int = setting(Param(kind=int, help="input points a query's occupancy aggregates", ge=1), override=True)
+    heads: int = setting(Param(kind=int, help="attention heads of the decoder", ge=1), override=True)
+    input_points: int = setting(Param(kind=int, help="points of a training item's cloud and of an inference view", ge=1), override=True)
+    queries: int = setting(Param(kind=int, help="labelled query points per training item", ge=1), override=True)
+    batch: int = setting(Param(kind=int, help="training items per step", ge=1), override=True)
+    steps: int = setting(Param(kind=int, help="optimizer steps", ge=1), override=True)
+    lr: float = setting(Param(1e-3, "Adam learning rate (constant)", gt=0), override=True)
+    rotate: bool = setting(Param(True, "turn every training item by a random rotation"), override=True)
     log_every: int = setting(Param(50, "steps between loss reports", ge=1))
 
     def __post_init__(self):
-        check_fields(self, f"poco config '{self.name}'")
+        check_fields(self, f"poco budget '{self.name}'")
         if self.input_points < self.decoder_k:
-            raise ValueError(f"poco config '{self.name}': input_points {self.input_points} < decoder_k {self.decoder_k}")
+            raise ValueError(f"poco budget '{self.name}': input_points {self.input_points} < decoder_k {self.decoder_k}")
+        if self.pool_points < self.input_points:
+            raise ValueError(f"poco budget '{self.name}': pool_points {self.pool_points} < input_points "
+                             f"{self.input_points} (an item's cloud is drawn without replacement)")
 
     def network_config(self) -> dict:
         """Keyword arguments of :func:`methods.pointcloud.poco.network.make_poco_network`."""
@@ -95,23 +98,19 @@ class POCOConfig:
 #: file's ``iter_nbr`` is read by nothing). *cpu*: training within ~15 min on one core: width 32
 #: (the FKAConv alignment, whose cost does not depend on the width, dominates), the paper's levels,
 #: convolution K and item clouds, decoder K 32 with 16 heads, items of 1,024 queries, batches of 4,
-#: 1,200 steps. *tiny*: tests (seconds).
-POCO_CONFIGS: dict[str, POCOConfig] = {c.name: c for c in (
-    POCOConfig("paper", hidden=64, levels=4, conv_k=16, latent=32, decoder_k=64, heads=64, input_points=3_000,
-               queries=2_000, batch=16, steps=100_000, lr=1e-3, log_every=500),
-    POCOConfig("cpu", hidden=32, levels=4, conv_k=16, latent=32, decoder_k=32, heads=16, input_points=3_000,
-               queries=1_024, batch=4, steps=1_200, lr=1e-3, log_every=50),
-    POCOConfig("tiny", hidden=16, levels=2, conv_k=8, latent=16, decoder_k=16, heads=8, input_points=500,
-               queries=512, batch=4, steps=300, lr=3e-3, rotate=True, log_every=25),
-)}
-
-
-def poco_config(budget) -> POCOConfig:
-    """The :class:`POCOConfig` of a budget (its name, or a ``KNNBudget``)."""
-    name = budget if isinstance(budget, str) else budget.name
-    if name not in POCO_CONFIGS:
-        raise ValueError(f"poco has no configuration for budget '{name}'; known: {', '.join(POCO_CONFIGS)}")
-    return POCO_CONFIGS[name]
+#: 1,200 steps. *tiny*: tests (seconds). The training sets are those of the K-NN budgets of the same
+#: name (paper: 100 parts, pools of 1M; cpu: 24 parts, pools of 200k; tiny: 4 parts, pools of 20k).
+POCO_FAMILY = register_budget_family("poco", (
+    POCOBudget("paper", hidden=64, levels=4, conv_k=16, latent=32, decoder_k=64, heads=64, input_points=3_000,
+               queries=2_000, batch=16, steps=100_000, lr=1e-3, log_every=500,
+               training_shapes=100, pool_samples=1_000_000, pool_points=1_000_000),
+    POCOBudget("cpu", hidden=32, levels=4, conv_k=16, latent=32, decoder_k=32, heads=16, input_points=3_000,
+               queries=1_024, batch=4, steps=1_200, lr=1e-3, log_every=50,
+               training_shapes=24, pool_samples=200_000, pool_points=200_000),
+    POCOBudget("tiny", hidden=16, levels=2, conv_k=8, latent=16, decoder_k=16, heads=8, input_points=500,
+               queries=512, batch=4, steps=300, lr=3e-3, rotate=True, log_every=25,
+               training_shapes=4, pool_samples=20_000, pool_points=20_000),
+))
 
 
 # --------------------------------------------------------------------------------------------------
@@ -132,62 +131,57 @@ def _draw(rows: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
     return rng.choice(rows, size=count, replace=count > len(rows))
 
 
-def draw_batch(pools: TrainingPools, config: POCOConfig, rng: np.random.Generator):
+def draw_batch(pools: TrainingPools, budget: POCOBudget, rng: np.random.Generator):
     """One training batch: clouds (B, input_points, 3), queries (B, queries, 3) float32 and their
-    occupancy labels (B, queries) int64; B = ``config.batch`` distinct shapes (repeats only when
-    there are fewer), each item turned by its own :func:`random_rotation` when ``config.rotate``."""
+    occupancy labels (B, queries) int64; B = ``budget.batch`` distinct shapes (repeats only when
+    there are fewer), each item turned by its own :func:`random_rotation` when ``budget.rotate``."""
     n = len(pools.pools)
-    chosen = rng.choice(n, size=config.batch, replace=config.batch > n)
+    chosen = rng.choice(n, size=budget.batch, replace=budget.batch > n)
     clouds, queries, labels = [], [], []
     for index in chosen:
         pool = pools.pools[index]
-        cloud = pool.cloud[rng.choice(len(pool.cloud), size=config.input_points, replace=False)]
+        cloud = pool.cloud[rng.choice(len(pool.cloud), size=budget.input_points, replace=False)]
         volume = pool.targets["volume"] > 0.5
-        half = config.queries // 2
+        half = budget.queries // 2
         rows = np.concatenate([_draw(np.flatnonzero(volume), half, rng),
-                               _draw(np.flatnonzero(~volume), config.queries - half, rng)])
-        rotation = (random_rotation(rng) if config.rotate else np.eye(3)).astype(np.float32)
+                               _draw(np.flatnonzero(~volume), budget.queries - half, rng)])
+        rotation = (random_rotation(rng) if budget.rotate else np.eye(3)).astype(np.float32)
         clouds.append(cloud @ rotation.T)
         queries.append(pool.anchors[rows] @ rotation.T)
         labels.append(pool.targets["occupancy"][rows] > 0.5)
     return np.stack(clouds), np.stack(queries), np.stack(labels).astype(np.int64)
 
 
-def train_poco(method, shapes: Sequence, budget, seed: int = 0, device=None,
-               progress: Callable[..., None] | None = None) -> KNNTrainResult:
-    """Train POCO across ``shapes`` (module docstring) at ``budget`` (a ``KNNBudget`` or its name:
-    its training pools; the architecture and schedule of :func:`poco_config`).
+def train_poco(method, shapes: Sequence, budget: POCOBudget, seed: int = 0, device=None,
+               progress: Callable[..., None] | None = None) -> TrainResult:
+    """Train POCO across ``shapes`` (module docstring) at ``budget`` (its architecture, schedule
+    and training pools).
 
     ``seed``: the pools, the network's initialisation (:func:`methods.core.device.seeded_generator`) and
-    every batch draw (``SeedSequence(seed).spawn(2)[1]``); on the CPU the same seed gives the same
+    every batch draw (:func:`benchmark.seeding.training_streams`); on the CPU the same seed gives the same
     weights. ``progress(step=..., loss=..., total=steps)`` every ``log_every`` steps. Returns a
-    :class:`methods.pointcloud.knn.training.KNNTrainResult` (model in eval mode)."""
-    budget = get_knn_budget(budget)
-    config = poco_config(budget)
+    :class:`methods.pointcloud.training_set.TrainResult` (model in eval mode)."""
     device = get_device(device)
     pools = TrainingPools(method, shapes, budget, seed)
-    if min(len(p.cloud) for p in pools.pools) < config.input_points:
-        raise ValueError(f"poco at budget '{budget.name}': pool_points {budget.pool_points} < input_points "
-                         f"{config.input_points}")
     seeded_generator(seed, device)
-    rng = np.random.default_rng(np.random.SeedSequence(int(seed)).spawn(2)[1])
-    model = make_poco_network(**config.network_config()).to(device)
-    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
+    rng = training_streams(seed).batch_rng()
+    model = make_poco_network(**budget.network_config()).to(device)
+    optimizer = torch.optim.Adam(model.parameters(), lr=budget.lr)
 
     def step_loss(step: int) -> torch.Tensor:
-        clouds, queries, labels = draw_batch(pools, config, rng)
-        structures = batch_structures([cloud_structure(c, config.levels, config.conv_k) for c in clouds], device)
-        index = np.stack([knn_neighbourhoods(c, q, config.decoder_k) for c, q in zip(clouds, queries)])
+        clouds, queries, labels = draw_batch(pools, budget, rng)
+        structures = batch_structures([cloud_structure(c, budget.levels, budget.conv_k) for c in clouds], device)
+        index = np.stack([knn_neighbourhoods(c, q, budget.decoder_k) for c, q in zip(clouds, queries)])
         logits = model(structures, torch.from_numpy(queries).to(device), torch.from_numpy(index).to(device))
         return method.loss(logits.reshape(-1, 2), {"occupancy": torch.from_numpy(labels.reshape(-1)).to(device)})
 
-    T = config.steps
+    T = budget.steps
     report = None if progress is None else lambda step, loss: progress(step=step, loss=loss, total=T)
-    result = run_steps(model, optimizer, T, step_loss, log_every=config.log_every,
+    result = run_steps(model, optimizer, T, step_loss, log_every=budget.log_every,
                        where=lambda i: f"step {i} of {T} (method '{method.name}', budget '{budget.name}', seed {seed})",
                        progress=report, device=device)
-    return KNNTrainResult(model=model, losses=result.losses, seconds=result.seconds, steps=T,
-                          samples_per_s=T * config.batch * config.queries / max(result.seconds, 1e-9),
+    return TrainResult(model=model, losses=result.losses, seconds=result.seconds, steps=T,
+                          samples_per_s=T * budget.batch * budget.queries / max(result.seconds, 1e-9),
                           final_loss=result.final_loss, pool_seconds=pools.seconds)
 
 
@@ -303,7 +297,8 @@ class POCOMethod(OwnNetworkMethod):
     color = "#5b8c2a"
     network_label = "POCO"
     build_network = staticmethod(make_poco_network)
-    training_modules = ("methods.pointcloud.poco.network", "methods.pointcloud.knn.training")
+    budget_family = "poco"
+    training_modules = ("methods.pointcloud.poco.network", "methods.pointcloud.training_set")
     parameters = {
         "band": Param(3.0, "grid points within this many h of an input point are queried", gt=0),
         "views": Param(10, "latents computed (and averaged) per input point over random subsets", ge=1),
@@ -321,11 +316,8 @@ class POCOMethod(OwnNetworkMethod):
         """Cross-entropy of the (B, 2) logits [outside, inside] against the labels (B,) (0/1)."""
         return F.cross_entropy(prediction, targets["occupancy"].long())
 
-    def train_network(self, shapes, budget, seed, device=None, progress=None) -> KNNTrainResult:
+    def train_network(self, shapes, budget, seed, device=None, progress=None) -> TrainResult:
         return train_poco(self, shapes, budget, seed=seed, device=device, progress=progress)
-
-    def architecture(self, budget):
-        return poco_config(budget)
 
     def reconstruct(self, points, N, device=None, seed=0, model=None) -> Extraction:
         model, device = self.network_on_device(model, device)
@@ -345,8 +337,8 @@ class POCOMethod(OwnNetworkMethod):
             known[tuple(ijk.T)] = True
             volume = far_occupancy(known)
             volume[tuple(ijk.T)] = probability(point_inputs(N, ijk))
-        V, Fc = marching_cubes_grid(volume, 0.5, inside="high")
+        mesh = marching_cubes_grid(volume, 0.5, inside="high")
         with stage("refine"):
-            V, refined = refine_vertices(V, volume, known, probability, self.params["refine_steps"])
-        return Extraction(V, Fc, info={"queried_points": int(len(ijk)), "backbone_passes": int(passes),
+            V, refined = refine_vertices(mesh.vertices, volume, known, probability, self.params["refine_steps"])
+        return Extraction(V, mesh.faces, info={"queried_points": int(len(ijk)), "backbone_passes": int(passes),
                                        "refined_vertices": refined})

@@ -56,7 +56,7 @@ import torch
 from torch import nn
 import torch.nn.functional as F
 
-from methods.pointcloud.knn.network import knn_neighbourhoods
+from methods.pointcloud.neighbourhoods import knn_neighbourhoods
 
 __all__ = ["quantized_subsample", "CloudStructure", "cloud_structure", "batch_structures", "gather_rows",
            "FKAConv", "ResidualBlock", "FKAConvUNet", "AttentionDecoder", "POCONetwork", "make_poco_network",
