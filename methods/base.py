@@ -20,8 +20,9 @@ from __future__ import annotations
 
 import importlib
 import pkgutil
+from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Mapping
+from typing import Any, ClassVar, Iterator, Mapping
 
 import numpy as np
 
@@ -80,10 +81,9 @@ class Method:
     extractor : name of the extraction algorithm, for tables (e.g. ``'marching cubes'``, ``'E-DC'``).
     parameters : the extractor parameters, ``{name: Param(default, help, bounds...)}``; users override
         any of them (``--method-param NAME.PARAM=VALUE``), parsed and checked by :class:`Param`.
-    display_order : position in tables, plots and the default ``--methods`` list (low first).
-    color : hex colour of the method in the report's plots.
-    table_note : a sentence every table caption of a run with the method carries, where its row
-        could be mistaken for something else (e.g. an ablation named after a published family).
+
+    How tables and plots show the method (its order, colour and caption note) is registry metadata
+    given to :func:`register_method`, not part of the class.
     """
 
     name: ClassVar[str] = ""
@@ -92,9 +92,6 @@ class Method:
     output_dim: ClassVar[int] = 1
     extractor: ClassVar[str] = ""
     parameters: ClassVar[dict[str, Param]] = {}
-    display_order: ClassVar[int] = 100
-    color: ClassVar[str] = "#7f7f7f"
-    table_note: ClassVar[str] = ""
     #: The benchmark task the method serves: ``'encode'`` (a field fitted per shape from the mesh's
     #: exact fields: this class) or ``'reconstruct'`` (a mesh from a raw point cloud:
     #: :class:`PointCloudMethod`).
@@ -348,14 +345,61 @@ def _import_method_modules() -> None:
 
 #: The method registry: name -> Method subclass, listed in display order.
 METHODS: Registry[type[Method]] = Registry("method", loader=_import_method_modules,
-                                           order=lambda cls: (cls.display_order, cls.name))
+                                           order=lambda cls: (PRESENTATION.get(cls.name, Presentation()).order,
+                                                              cls.name))
 
 
-def register_method(cls: type[Method]) -> type[Method]:
-    """Class decorator: make a :class:`Method` subclass available under ``cls.name``."""
-    if not cls.name:
-        raise ValueError(f"{cls.__name__} must set a non-empty 'name'")
-    return METHODS.register(cls.name, cls)
+@dataclass(frozen=True)
+class Presentation:
+    """How tables, plots and the default method list show a method: registry metadata beside its
+    class, not part of its algorithm (code digests leave it out).
+
+    order : position in tables, plots and the default ``--methods`` list (low first).
+    color : hex colour of the method in the report's plots.
+    note : a sentence every table caption of a run with the method carries, where its row could be
+        mistaken for something else (e.g. an ablation named after a published family).
+    """
+
+    order: int = 100
+    color: str = "#7f7f7f"
+    note: str = ""
+
+
+#: The presentation of each registered method, by name (:func:`register_method`).
+PRESENTATION: dict[str, Presentation] = {}
+
+
+def register_method(cls: type[Method] | None = None, /, *, order: int = 100, color: str = "#7f7f7f",
+                    note: str = ""):
+    """Class decorator: make a :class:`Method` subclass available under ``cls.name``, shown with
+    ``order``, ``color`` and ``note`` (:class:`Presentation`). ``@register_method`` alone gives the
+    defaults; ``register_method(cls, order=...)`` registers a class directly."""
+    def register(cls: type[Method]) -> type[Method]:
+        if not cls.name:
+            raise ValueError(f"{cls.__name__} must set a non-empty 'name'")
+        METHODS.register(cls.name, cls)
+        PRESENTATION[cls.name] = Presentation(order, color, note)
+        return cls
+
+    return register if cls is None else register(cls)
+
+
+@contextmanager
+def registered_method(cls: type[Method], **presentation: Any) -> Iterator[type[Method]]:
+    """Register ``cls`` with its :class:`Presentation` fields for the duration of a ``with`` block
+    (tests, plugins tried out)."""
+    with METHODS.registered(cls.name, cls):
+        PRESENTATION[cls.name] = Presentation(**presentation)
+        try:
+            yield cls
+        finally:
+            PRESENTATION.pop(cls.name, None)
+
+
+def presentation(name: str) -> Presentation:
+    """How method ``name`` is shown (the defaults for a name registered without one)."""
+    METHODS.names()
+    return PRESENTATION.get(name, Presentation())
 
 
 def budget_family(name: str) -> BudgetFamily:

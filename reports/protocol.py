@@ -17,7 +17,7 @@ git_commit  str or None
 sweep       optional: {key: [values in the user's order]} of a sweep run (:mod:`reports.sweep`);
             empty or missing when the run is not a sweep
 method_notes optional: {method: sentence} every caption carries (what a row is, where its name
-            could mislead; ``Method.table_note``)
+            could mislead; ``methods.base.Presentation.note``)
 ========== =====================================================================
 
 The metric protocol (which metrics, their multipliers, the protocol text) comes from the preset

@@ -131,14 +131,20 @@ def project_imports(name: str, path: Path, packages: tuple[str, ...] = PROJECT_P
 
 def _computing_source(path: Path) -> bytes:
     """The module's syntax tree without docstrings, dumped: equal for two files whose code is equal
-    whatever their comments, docstrings and formatting."""
+    whatever their comments, docstrings, formatting and methods' presentation metadata."""
     return _code_without_docstrings(path.read_text(encoding="utf-8"), str(path))
 
 
 @lru_cache(maxsize=None)
 def _code_without_docstrings(source: str, filename: str) -> bytes:
+    """The dump of the syntax tree without docstrings and without the presentation metadata of
+    ``@register_method(order=..., color=..., note=...)`` (how tables show a method computes nothing)."""
     tree = ast.parse(source, filename=filename)
     for node in ast.walk(tree):
+        if isinstance(node, ast.ClassDef):
+            for decorator in node.decorator_list:
+                if isinstance(decorator, ast.Call) and getattr(decorator.func, "id", None) == "register_method":
+                    decorator.keywords = []
         if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
             body = node.body
             if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant) \

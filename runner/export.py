@@ -78,10 +78,10 @@ def report_context(record: dict[str, Any]) -> dict[str, Any]:
 
 def method_notes(names) -> dict[str, str]:
     """{method: its table note} of the registered methods among ``names`` that have one."""
-    from methods.base import METHODS
+    from methods.base import METHODS, presentation
 
     known = set(METHODS.names())
-    return {n: METHODS.get(n).table_note for n in names if n in known and METHODS.get(n).table_note}
+    return {n: presentation(n).note for n in names if n in known and presentation(n).note}
 
 
 def export(run_dir: str | Path, db=None, record: dict[str, Any] | None = None,

@@ -51,12 +51,12 @@ def fakes():
     """The test-only methods of tests/fake_methods.py, registered for one test."""
     from contextlib import ExitStack
 
-    from methods.base import METHODS
+    from methods.base import registered_method
     from tests.fake_methods import FAKES
 
     with ExitStack() as stack:
-        for cls in FAKES:
-            stack.enter_context(METHODS.registered(cls.name, cls))
+        for cls, order in FAKES:
+            stack.enter_context(registered_method(cls, order=order))
         yield
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from methods.base import METHODS, Method
+from methods.base import Method, register_method
 from benchmark.params import Param
 
 PLUGIN = "tests.fake_methods:register_fakes"
@@ -53,7 +53,6 @@ class _FakeGridMethod(Method):
 class FakeSDF(_FakeGridMethod):
     name = "test_sdf"
     description = "test-only: marching cubes on the exact SDF"
-    display_order = 1
     parameters = {"level": Param(0.0, "iso level", gt=-0.1, lt=0.1),
                   "offset": Param(0.0, "added to the training targets (a setting the fit reads)", ge=-0.05, le=0.05,
                                   neural_only=True, fit=True)}
@@ -63,13 +62,11 @@ class FakeOcc(_FakeGridMethod):
     name = "test_occ"
     description = "test-only: marching cubes on the exact occupancy"
     kind = "occupancy"
-    display_order = 2
 
 
 class FakeBroken(_FakeGridMethod):
     name = "test_broken"
     description = "test-only: its extractor always raises"
-    display_order = 3
 
     def extract(self, grid_field, N):
         raise RuntimeError("boom: extractor failed\nsecond line")
@@ -78,16 +75,16 @@ class FakeBroken(_FakeGridMethod):
 class FakeNaN(FakeSDF):
     name = "test_nan"
     description = "test-only: its training loss is NaN"
-    display_order = 4
 
     def loss(self, prediction, targets):
         return super().loss(prediction, targets) * float("nan")
 
 
-FAKES = (FakeSDF, FakeOcc, FakeBroken, FakeNaN)
+#: The test-only methods, each with its display order.
+FAKES = ((FakeSDF, 1), (FakeOcc, 2), (FakeBroken, 3), (FakeNaN, 4))
 
 
 def register_fakes() -> None:
     """Register the test-only methods (idempotent; also called in worker processes)."""
-    for cls in FAKES:
-        METHODS.register(cls.name, cls)
+    for cls, order in FAKES:
+        register_method(cls, order=order)

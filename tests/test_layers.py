@@ -122,8 +122,9 @@ METHOD_ROOMS = ("methods.fields", "methods.pointcloud")
 
 
 def registers_a_method(path: Path) -> bool:
-    """True when the module's top level defines a class decorated ``@register_method``."""
-    return any(isinstance(node, ast.ClassDef) and any(getattr(d, "id", None) == "register_method"
+    """True when the module's top level defines a class decorated ``@register_method`` (with or
+    without presentation arguments)."""
+    return any(isinstance(node, ast.ClassDef) and any(getattr(getattr(d, "func", d), "id", None) == "register_method"
                                                       for d in node.decorator_list)
                for node in ast.parse(path.read_text(encoding="utf-8")).body)
 

@@ -10,7 +10,7 @@ from benchmark.fields import ExactFields
 from benchmark.metrics import evaluate
 from benchmark.sampler import sample_training_data
 from benchmark.timing import StageTimer, stage
-from methods.base import METHODS, Method, available_methods, get_method
+from methods.base import METHODS, Method, available_methods, get_method, presentation
 from methods.core.fitting import BUDGETS, fit
 from benchmark.params import Param
 from methods.fields.sals import PAPER_O_THRESHOLD, edge_draws
@@ -50,7 +50,7 @@ def test_registry_has_the_four_methods_and_lists_them_on_unknown_names():
         get_method("sals", thresold=0.2)
     assert get_method("sals", o_threshold=0.2).params["o_threshold"] == 0.2
     assert get_method("sals").input_dim == 6 and get_method("udf").input_dim == 3
-    assert len({METHODS.get(m).color for m in listed}) == len(listed)  # one colour each
+    assert len({presentation(m).color for m in listed}) == len(listed)  # one colour each
 
 
 def test_parameters_are_typed_and_checked():

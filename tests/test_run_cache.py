@@ -35,6 +35,15 @@ def test_code_digest_follows_imports_and_refuses_missing_modules(tmp_path, monke
     (pkg / "zz_probe_a.py").write_text('def f():\n    "Doc."\n    from benchmark import zz_probe_b\n')
     code_digest.cache_clear()
     assert code_digest("benchmark.zz_probe_a") == second
+    (pkg / "zz_probe_b.py").write_text('@register_method(order=1, color="#000000")\nclass M:\n    pass\nX = 2\n')
+    code_digest.cache_clear()
+    colored = code_digest("benchmark.zz_probe_a")
+    (pkg / "zz_probe_b.py").write_text('@register_method(order=9, color="#ffffff", note="a note")\nclass M:\n    pass\nX = 2\n')
+    code_digest.cache_clear()
+    assert code_digest("benchmark.zz_probe_a") == colored  # how tables show a method is not code
+    (pkg / "zz_probe_b.py").write_text('@register_method(order=9, color="#ffffff", note="a note")\nclass M:\n    y = 1\nX = 2\n')
+    code_digest.cache_clear()
+    assert code_digest("benchmark.zz_probe_a") != colored
     (pkg / "zz_probe_b.py").unlink()  # renamed away: never silently counted as empty
     code_digest.cache_clear()
     with pytest.raises(ModuleNotFoundError, match="imports 'benchmark.zz_probe_b', which does not exist"):

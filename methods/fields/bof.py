@@ -22,15 +22,13 @@ from methods.base import Extraction, Method, register_method, signed_hybrid, wro
 from methods.extractors.marching_cubes import marching_cubes_grid
 
 
-@register_method
+@register_method(order=10, color="#29a37a")
 class BOFMethod(Method):
     name = "bof"
     description = "neural binary occupancy field + marching cubes at probability 0.5"
     input_kind = "points"
     output_dim = 1
     extractor = "marching cubes"
-    display_order = 10
-    color = "#29a37a"
     components = ("sign", "magnitude")
     parameters = {
         "level": Param(0.5, "occupancy probability of the extracted level set", gt=0, lt=1),

@@ -26,13 +26,11 @@ def lod_resolutions(lods: int, base_lod: int = 2) -> tuple[int, ...]:
     return tuple(2 ** (base_lod + level) + 1 for level in range(lods))
 
 
-@register_method
+@register_method(order=27, color="#6a51a3")
 class NGLODMethod(SDFMethod):
     name = "nglod"
     description = "NGLOD (summed multi-LOD feature volumes, a decoder per LOD) fitted to the SDF + marching cubes"
     extractor = "marching cubes"
-    display_order = 27
-    color = "#6a51a3"
     parameters = {
         **SDFMethod.parameters,
         "lods": Param(5, "levels of detail (feature volumes of 4, 8, ... cells per axis)", ge=1, le=7, fit=True,

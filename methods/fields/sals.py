@@ -123,15 +123,13 @@ def _positions(ids: np.ndarray, table: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return held, at[held]
 
 
-@register_method
+@register_method(order=40, color="#e4572e")
 class SALSMethod(Method):
     name = "sals"
     description = "neural line segment field (SALS) + edge-based dual contouring (E-DC)"
     input_kind = "segments"
     output_dim = 2
     extractor = "E-DC"
-    display_order = 40
-    color = "#e4572e"
     components = ("flags", "s", "normals")
     parameters = {
         "o_threshold": Param(DEFAULT_O_THRESHOLD, "an edge is intersected when o_hat > this (the paper: 0.1)", gt=0,

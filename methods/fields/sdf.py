@@ -23,15 +23,13 @@ from methods.extractors.marching_cubes import marching_cubes_grid
 DISTANCE_CLAMP = 0.1
 
 
-@register_method
+@register_method(order=20, color="#3a7fc1")
 class SDFMethod(Method):
     name = "sdf"
     description = "neural signed distance field + marching cubes at level 0"
     input_kind = "points"
     output_dim = 1
     extractor = "marching cubes"
-    display_order = 20
-    color = "#3a7fc1"
     components = ("sign", "magnitude")
     parameters = {
         "level": Param(0.0, "iso level of marching cubes (canonical units)", gt=-DISTANCE_CLAMP, lt=DISTANCE_CLAMP),

@@ -21,14 +21,12 @@ from methods.base import Extraction, register_method
 from methods.fields.sdf import SDFMethod
 
 
-@register_method
+@register_method(order=25, color="#7a5fc1")
 class SDFNDCMethod(SDFMethod):
     name = "sdf-ndc"
     description = "the sdf method's field + Neural Dual Contouring with NDC's published SDF network"
     extractor = "NDC"
     fit_of = "sdf"
-    display_order = 25
-    color = "#7a5fc1"
     parameters = {
         "stride": Param(query.DEFAULT_STRIDE, "coarse stride of the sparse query", ge=1, neural_only=True),
     }

@@ -36,15 +36,13 @@ DISTANCE_CLAMP = 0.1
 GRAD_WEIGHT = 0.1
 
 
-@register_method
+@register_method(order=30, color="#f2a541")
 class UDFMethod(Method):
     name = "udf"
     description = "neural unsigned distance field + MeshUDF-style extraction"
     input_kind = "points"
     output_dim = 1
     extractor = "MeshUDF"
-    display_order = 30
-    color = "#f2a541"
     components = ("values", "gradients")
     parameters = {
         "face_filter": Param(1.0 / 6.0, "faces whose largest vertex UDF is >= this x h are removed", gt=0),

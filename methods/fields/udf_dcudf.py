@@ -34,14 +34,12 @@ def network_udf_and_raw_gradient(model, points: np.ndarray, device=None) -> tupl
     return np.maximum(out[:, 0], 0.0), np.where(positive[:, None], g, 0.0)
 
 
-@register_method
+@register_method(order=37, color="#8c6d31")
 class UDFDCUDFMethod(UDFMethod):
     name = "udf-dcudf"
     description = "the udf method's field + DCUDF (double cover at a small level, optimised to d = 0, min-cut)"
     extractor = "DCUDF"
     fit_of = "udf"
-    display_order = 37
-    color = "#8c6d31"
     components = ()
     parameters = {
         "r": Param(None, "level of the double cover, canonical units (None: the authors' 0.005 x 256 / N in "

@@ -19,14 +19,12 @@ from methods.extractors.dualmesh import dualmesh_udf
 from methods.fields.udf import UDFMethod
 
 
-@register_method
+@register_method(order=35, color="#c1633a")
 class UDFDualMeshMethod(UDFMethod):
     name = "udf-dualmesh"
     description = "the udf method's field + DualMesh-UDF (octree-free dual contouring with tangent-plane QEFs)"
     extractor = "DualMesh-UDF"
     fit_of = "udf"
-    display_order = 35
-    color = "#c1633a"
     components = ()
     parameters = {
         "stride": Param(query.DEFAULT_STRIDE, "coarse stride of the sparse query", ge=1, neural_only=True),

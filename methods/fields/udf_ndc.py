@@ -45,14 +45,12 @@ def _load():
     return _networks(str(path), stat.st_size, stat.st_mtime_ns)
 
 
-@register_method
+@register_method(order=36, color="#a0522d")
 class UDFNDCMethod(UDFMethod):
     name = "udf-ndc"
     description = "the udf method's field + unsigned Neural Dual Contouring (UNDC) with our trained networks"
     extractor = "UNDC (our weights)"
     fit_of = "udf"
-    display_order = 36
-    color = "#a0522d"
     components = ()
     parameters = {
         "stride": Param(query.DEFAULT_STRIDE, "coarse stride of the sparse query", ge=1, neural_only=True),

@@ -190,15 +190,13 @@ def trim_far_vertices(V: np.ndarray, F: np.ndarray, points: np.ndarray, limit: f
 # ------------------------------------------------------------------------------------------------
 # the method
 # ------------------------------------------------------------------------------------------------
-@register_method
+@register_method(order=45, color="#e377c2")
 class UODFMethod(Method):
     name = "uodf"
     description = "unsigned orthogonal distance fields (3 axes) + UODF point extraction and screened Poisson"
     input_kind = "points"
     output_dim = 3
     extractor = "UODF points + Poisson"
-    display_order = 45
-    color = "#e377c2"
     parameters = {
         "dedupe": Param(1.0, "a crossing's second estimate is dropped within this x h of the first", ge=0),
         "normal_k": Param(10, "neighbours of the PCA normals before Poisson", ge=3),

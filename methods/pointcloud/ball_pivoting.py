@@ -15,13 +15,11 @@ from methods.extractors.meshlab import current_mesh, oriented_point_set
 from benchmark.params import Param
 
 
-@register_method
+@register_method(order=120, color="#bcbd22")
 class BallPivotingMethod(PointCloudMethod):
     name = "ball-pivoting"
     description = "ball-pivoting surface reconstruction (pymeshlab) with PCA normals"
     extractor = "ball pivoting"
-    display_order = 120
-    color = "#bcbd22"
     parameters = {
         "radius": Param(0.0, "ball radius, canonical units (0: MeshLab's automatic radius)", ge=0),
         "normal_k": Param(10, "neighbours of the PCA normal estimate", ge=3),

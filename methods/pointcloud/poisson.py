@@ -30,13 +30,11 @@ from methods.extractors.meshlab import current_mesh, oriented_point_set, poisson
 from benchmark.params import Param
 
 
-@register_method
+@register_method(order=110, color="#8c564b")
 class PoissonMethod(PointCloudMethod):
     name = "poisson"
     description = "screened Poisson reconstruction (pymeshlab) with PCA normals and density trimming"
     extractor = "screened Poisson"
-    display_order = 110
-    color = "#8c564b"
     parameters = {
         "depth": Param(0, "octree depth (0: round(log2 grid))", ge=0),
         "point_weight": Param(4.0, "screening weight of the points (pymeshlab's default)", ge=0),

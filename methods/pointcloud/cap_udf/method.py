@@ -295,15 +295,13 @@ def grid_udf(model: torch.nn.Module, ijk: np.ndarray, N: int, centre: np.ndarray
     return udf, grad
 
 
-@register_method
+@register_method(order=150, color="#b5179e")
 class CAPUDFMethod(PointCloudMethod):
     name = "cap-udf"
     description = ("CAP-UDF: a per-shape UDF MLP pulled onto the raw cloud (field consistency, progressive "
                    "densification), gradient-sign marching cubes")
     extractor = "CAP-UDF gradient-sign marching cubes"
     budget_family = "cap-udf"
-    display_order = 150
-    color = "#b5179e"
     parameters = {
         "band": Param(2.0, "grid points within this many h of an input point (and their grid neighbours) are "
                       "queried; the others are far", gt=0),

@@ -432,15 +432,13 @@ def udf_and_gradient(model: GeoUDFNetwork, dense: np.ndarray, normals: np.ndarra
     return np.concatenate(udf), np.concatenate(grad)
 
 
-@register_method
+@register_method(order=160, color="#24347f")
 class GeoUDFMethod(OwnNetworkMethod):
     name = "geoudf"
     description = "GeoUDF: LGR-Net upsampling with normals, geometry-guided UDF and gradient, edge-based marching cubes"
     network_kind = "point"
     output_dim = 1
     extractor = "E-MC"
-    display_order = 160
-    color = "#24347f"
     network_label = "GeoUDF"
     build_network = staticmethod(make_geoudf_network)
     budget_family = "geoudf"

@@ -267,7 +267,7 @@ def refine_vertices(model: GIFSNetwork, grids: list[torch.Tensor], vertices: np.
     return v.detach().cpu().numpy().astype(np.float64)
 
 
-@register_method
+@register_method(order=170, color="#d4a017")
 class GIFSMethod(OwnNetworkMethod):
     name = "gifs"
     description = "GIFS: IF-Net voxel features -> UDF + pair separation flags, per-cube signs, marching cubes"
@@ -275,8 +275,6 @@ class GIFSMethod(OwnNetworkMethod):
     input_kind = "segments"
     output_dim = 3
     extractor = "GIFS marching cubes"
-    display_order = 170
-    color = "#d4a017"
     network_label = "GIFS"
     build_network = staticmethod(make_gifs_network)
     budget_family = "gifs"

@@ -35,17 +35,15 @@ from benchmark.params import Param
 from benchmark.grid import point_inputs
 
 
-@register_method
+@register_method(order=120, color="#17becf",
+                 note="occ-knn is SALS's K-NN encoder with an occupancy output, a controlled ablation of the "
+                      "representation (the published POCO is the row poco).")
 class OccKNNMethod(KNNTrainedMethod):
     name = "occ-knn"
     description = "K-NN local network to occupancy (POCO/ConvONet family) + marching cubes"
     network_kind = "point"
     output_dim = 1
-    table_note = ("occ-knn is SALS's K-NN encoder with an occupancy output, a controlled ablation of the "
-                  "representation (the published POCO is the row poco).")
     extractor = "marching cubes"
-    display_order = 120
-    color = "#17becf"
     parameters = {
         "band": Param(4.0, "grid points within this many h of an input point are queried", gt=0),
     }

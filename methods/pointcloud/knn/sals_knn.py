@@ -26,7 +26,7 @@ from methods.pointcloud.knn.training import KNNTrainedMethod
 from methods.pointcloud.neighbourhoods import band_edges
 
 
-@register_method
+@register_method(order=140, color="#b8321a")
 class SALSKNNMethod(KNNTrainedMethod):
     name = "sals-knn"
     description = "SALS K-NN local network (trained across shapes) + E-DC, from a raw point cloud"
@@ -34,8 +34,6 @@ class SALSKNNMethod(KNNTrainedMethod):
     input_kind = "segments"
     output_dim = 2
     extractor = "E-DC"
-    display_order = 140
-    color = "#b8321a"
     parameters = {
         "o_threshold": Param(0.3, "an edge is intersected when o_hat > this (the paper's evaluation value)",
                              gt=0, lt=1),

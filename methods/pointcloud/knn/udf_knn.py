@@ -28,17 +28,15 @@ DISTANCE_CLAMP = 0.1
 FAR = 1.0
 
 
-@register_method
+@register_method(order=130, color="#9467bd",
+                 note="udf-knn is SALS's K-NN encoder with an unsigned-distance output, a controlled ablation of the "
+                      "representation (the published GeoUDF and CAP-UDF are the rows geoudf and cap-udf).")
 class UDFKNNMethod(KNNTrainedMethod):
     name = "udf-knn"
     description = "K-NN local network to the unsigned distance (GeoUDF/CAP-UDF family) + MeshUDF-style extraction"
     network_kind = "point"
     output_dim = 1
-    table_note = ("udf-knn is SALS's K-NN encoder with an unsigned-distance output, a controlled ablation of the "
-                  "representation (the published GeoUDF and CAP-UDF are the rows geoudf and cap-udf).")
     extractor = "MeshUDF-style"
-    display_order = 130
-    color = "#9467bd"
     parameters = {
         "band": Param(4.0, "grid points within this many h of an input point are queried", gt=0),
         "face_filter": Param(1.0 / 6.0, "faces whose largest vertex UDF is >= this x h are removed", gt=0),

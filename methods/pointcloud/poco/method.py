@@ -286,15 +286,13 @@ def refine_vertices(vertices: np.ndarray, volume: np.ndarray, known: np.ndarray,
     return vertices, int(on_edge.sum())
 
 
-@register_method
+@register_method(order=180, color="#5b8c2a")
 class POCOMethod(OwnNetworkMethod):
     name = "poco"
     description = "POCO: FKAConv point-convolution latents + attention decoder to occupancy, marching cubes"
     network_kind = "point"
     output_dim = 2
     extractor = "marching cubes"
-    display_order = 180
-    color = "#5b8c2a"
     network_label = "POCO"
     build_network = staticmethod(make_poco_network)
     budget_family = "poco"
