@@ -1,7 +1,7 @@
 """Disk cache of the exact grid fields, keyed by (mesh hash, N, kind).
 
 A :class:`FieldCache` serves the four oracle grid fields of an :class:`benchmark.fields.ExactFields`
-(tens of seconds each at N = 128) from one folder. The caller chooses the folder: the run layer
+(each costly to compute at N = 128) from one folder. The caller chooses the folder: the run layer
 passes ``benchmark.storage.cache_root(...) / "fields"`` (the one cache-root rule), ``None`` turns
 caching off.
 
@@ -10,7 +10,7 @@ Entries
 One file per (mesh, N, kind, band): ``<cache_key(...)>.npz`` in the cache folder. The file is a
 checksummed entry of :mod:`benchmark.storage` (written atomically by ``write_checked``) whose
 payload is an ``np.savez_compressed`` archive; grid edges are stored sparse (hit edges only).
-A file whose checksum fails -- damaged bytes, a truncated write, a file from before checksums --
+A file whose checksum fails -- damaged bytes, a truncated write, a file written without a checksum --
 or whose payload is not the expected archive is counted in ``stats.rejected``, recomputed and
 overwritten: a damaged entry is never used.
 """

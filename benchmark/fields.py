@@ -10,8 +10,8 @@ Definitions (p a point, M the mesh)
 * winding number w(p): generalised winding number, sum over triangles of the signed solid angle /
   (4 pi). Integer off the surface of a closed surface (+1 inside an outward-oriented one), continuous
   and fractional for open meshes. Evaluated exactly, by libigl's hierarchical ``winding_number`` or
-  by crossing counts (below); never by the fast-winding-number approximation (errors up to 0.2 seen
-  on ABC meshes).
+  by crossing counts (below); never by the fast-winding-number approximation (not exact; its
+  error on ABC meshes: docs/PERFORMANCE.md, "Measurements moved from docstrings").
 * occupancy: inside iff |w| > 0.5.
 * UDF d(p) = min_{x in M} |p - x| (libigl AABB ``squared_distance``); gradient (p - c) / |p - c| with
   c the closest point (zero where d = 0).
@@ -66,7 +66,7 @@ from benchmark.raster import closed_chain_winding_number, grid_line_hits
 #: (bump when a convention changes).
 FIELDS_VERSION = "fields-v1"
 
-#: Points per libigl call (keeps peak memory < 1 GB, ENVIRONMENT.md).
+#: Points per libigl call (bounds libigl's peak memory).
 CHUNK = 1 << 20
 
 #: Tolerance, in units of h, for a hit to count as lying at a grid point / edge end.
@@ -215,9 +215,9 @@ class ExactFields:
             by its boundary cone, minus the cone's own winding number (libigl, only for open meshes):
             w_M = w_(M+C) - w_C (module docstring). Exact off the surface; a point exactly on the
             surface gets one side (libigl would give the average). Much faster than 'libigl' on CAD
-            meshes for many points.
+            meshes for many points (docs/PERFORMANCE.md, section 8).
         method 'libigl': libigl's exact hierarchical ``winding_number`` (not the fast-winding-number
-            approximation, which is off by up to 0.2 on some ABC meshes), in chunks of ``CHUNK``.
+            approximation, which is not exact), in chunks of ``CHUNK``.
         """
         P = _as_points(points)
         if method == "auto":

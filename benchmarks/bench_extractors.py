@@ -17,7 +17,7 @@ benchmark.grid. Compares, at N = 64 and 128:
   edges), where its weights are found,
 * DCUDF (:func:`methods.extractors.dcudf.dcudf`) on the UDF grid, the authors' r, the ``udf-dcudf``
   method's default iterations, the analytic UDF and its gradient at the moving vertices; one round
-  (its optimisation takes seconds to minutes), ``main`` reports it once per N with the queries apart.
+  (an optimisation per call), ``main`` reports it once per N with the queries apart.
 
 Run: ``.venv/bin/pytest benchmarks/bench_extractors.py --benchmark-enable``. The machines are shared
 and noisy, so the numbers to read are the ratios to marching cubes measured side by side:

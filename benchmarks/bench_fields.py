@@ -58,7 +58,7 @@ def test_all_four_grid_fields(benchmark, shape):
 
 
 def test_segments_throughput(benchmark, shape):
-    """1M random segments (SPEC sampler-like: centres in the box, endpoint noise sigma 0.05)."""
+    """1M random segments (like the shared sampler's: centres in the box, endpoint noise sigma 0.05)."""
     rng = np.random.default_rng(0)
     u = rng.uniform(-1, 1, (1_000_000, 3))
     v = u + rng.normal(0, 0.05, u.shape)

@@ -2,9 +2,9 @@
 
 Print the table (one torch thread, the *cpu* budget, medians of interleaved repetitions):
     .venv/bin/python -m benchmarks.bench_fit_profile [--threads 1] [--rounds 60] [--methods sals sdf udf bof]
-Compare whole steps with the network code of another commit (its ``methods/core/network.py``, batches
-gathered by advanced indexing as that loop did), interleaved in one process:
-    .venv/bin/python -m benchmarks.bench_fit_profile --against a46de88
+Compare whole steps with the network code of another revision REV (its ``methods/core/network.py``,
+batches gathered by advanced indexing), interleaved in one process:
+    .venv/bin/python -m benchmarks.bench_fit_profile --against REV
 Steps per second of the machine, 2 one-thread processes side by side against one 2-thread process:
     .venv/bin/python -m benchmarks.bench_fit_profile --throughput 2
 or as pytest-benchmark (one whole step per method):
@@ -229,8 +229,8 @@ def network_module_at(revision: str):
 
 
 def step_against(method_name: str, network_module, rounds: int = 60) -> dict:
-    """Median ms of a whole step now and with ``network_module``'s network and advanced-indexing
-    batches (the same seed, data and optimizer settings), interleaved."""
+    """Median ms of a whole step with this checkout's code and with ``network_module``'s network
+    and advanced-indexing batches (the same seed, data and optimizer settings), interleaved."""
     now = Profile(method_name)
     then = Profile(method_name)
     torch.manual_seed(0)

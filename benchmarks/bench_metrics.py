@@ -1,4 +1,4 @@
-"""Speed of benchmark.metrics.evaluate (SPEC section 7) on a real ABC mesh vs a perturbed copy.
+"""Speed of benchmark.metrics.evaluate (docs/PROTOCOL.md, "Metrics") on a real ABC mesh vs a perturbed copy.
 
 Goal: all metrics for one pair at n = 1,000,000 in <= 15 s on 2 cores.
 

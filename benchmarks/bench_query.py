@@ -2,14 +2,13 @@
 
 Run the ratio table (interleaved, one process):  .venv/bin/python -m benchmarks.bench_query [N] [threads]
 SALS's query + normals against SDF's query on networks fitted at the *cpu* budget (one thread, medians
-of 3 interleaved; fits SALS and SDF on each mesh first, about a minute a mesh):
+of 3 interleaved; fits SALS and SDF on each mesh first):
     .venv/bin/python -m benchmarks.bench_query --fitted MESH [MESH ...]
 or as pytest-benchmark:  .venv/bin/pytest benchmarks/bench_query.py -o python_files='bench_*.py' --benchmark-enable -q
 Goal: sparse / dense query time <= 0.2 at N = 128 for points (sdf) and edges (sals, 6.24M edges dense).
 Also: a band of grid edges through ``evaluate_grid_edges`` (each endpoint encoded once) against the plain
-per-edge forward, with the *cpu* budget's grid network (16/32/64 x 4, 3 x 64 head). Measured (2 threads,
-AMD EPYC, medians of 3): 0.96x on a band of 348k edges, 0.87x on 845k; the head's Softplus, not the
-encoder, is most of an edge's cost on grid-ordered queries.
+per-edge forward, with the *cpu* budget's grid network (16/32/64 x 4, 3 x 64 head); the ratios
+measured: docs/PERFORMANCE.md, "Measurements moved from docstrings".
 
 The network is the *quick* architecture (5 linear layers, width 128) whose output is replaced by an
 analytic sphere field (radius 0.6; points: signed distance; edges: hit logit +-30 and the linear

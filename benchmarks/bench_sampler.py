@@ -1,4 +1,4 @@
-"""Speed of the shared sampler (SPEC section 3): five-group points + segments for one shape.
+"""Speed of the shared sampler (docs/PROTOCOL.md, "Shared sampler"): five-group points + segments for one shape.
 
     .venv/bin/python -m pytest benchmarks/bench_sampler.py -o python_files='bench_*.py' --benchmark-enable
 """

@@ -60,7 +60,7 @@ def ok_jobs(results: pd.DataFrame) -> pd.DataFrame:
 
 def scored(frame: pd.DataFrame) -> pd.Series:
     """Per row: scored against a GT (the ``scored`` column; False only for a shape without a GT, a
-    point cloud given alone; rows written before the column existed were all scored)."""
+    point cloud given alone; a frame without the column: every row scored)."""
     if "scored" not in frame.columns:
         return pd.Series(True, index=frame.index)
     return pd.to_numeric(frame["scored"], errors="coerce").fillna(1) > 0.5

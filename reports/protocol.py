@@ -12,7 +12,7 @@ seeds       list of int
 methods     method names in display order; shapes: shape names in dataset order
 metric_preset  a key of ``benchmark.metrics.PRESETS``
 eval_points the effective number of metric samples per mesh (int)
-device      e.g. 'cpu (AMD EPYC 7B13)'; cpu_model, gpu: str or None
+device      e.g. 'cpu (<CPU model>)'; cpu_model, gpu: str or None
 git_commit  str or None
 sweep       optional: {key: [values in the user's order]} of a sweep run (:mod:`reports.sweep`);
             empty or missing when the run is not a sweep
@@ -90,7 +90,7 @@ def protocol_items(context: dict) -> list[tuple[str, str]]:
              ("task", str(context["task"])), ("mode", str(context["mode"]))]
     if context["budget"] is not None:
         families = context["budget_values"] or {}
-        if not all(isinstance(v, dict) for v in families.values()):  # a run recorded before budget families
+        if not all(isinstance(v, dict) for v in families.values()):  # flat values, not keyed by family
             families = {"": families}
         described = "; ".join((f"{family}: " if len(families) > 1 else "") + ", ".join(f"{k} {v}" for k, v in values.items())
                               for family, values in families.items())

@@ -1,9 +1,9 @@
 """Headless mesh thumbnails: a small vectorised numpy z-buffer rasteriser (no display, no GPU, no VTK).
 
 Why a rasteriser of our own: a report renders (#shapes x (1 + 2 #methods)) thumbnails; pyvista/VTK is a
-~100 MB dependency whose first off-screen image takes ~2 s, and matplotlib's 3D axes sort whole polygons
-(no z-buffer, minutes for 100k faces). Rasterising triangles with numpy takes a fraction of a second for
-100k faces at 256 x 256 (2x supersampled), is deterministic, and runs on any bare CI machine.
+large dependency with a slow first off-screen image, and matplotlib's 3D axes sort whole polygons (no
+z-buffer); a numpy z-buffer of triangles at 256 x 256 (2x supersampled) is fast, deterministic, and runs
+on any bare CI machine (the costs compared: docs/PERFORMANCE.md, "Measurements moved from docstrings").
 
 Camera: orthographic, looking at the origin from (azimuth, elevation) degrees with +y up in the
 canonical frame ([-1, 1]^3). The framing is fixed by a bounding box (``bounds``), so

@@ -70,7 +70,7 @@ def record_result(db: ResultsDB, run_dir: RunDirectory, result: TaskResult, firs
 
 def fresh_results(db: ResultsDB, table: str, tasks: list, codes: dict[str, str], recompute: bool,
                   where: Path) -> set[str]:
-    """Keys of the tasks with an ``ok`` row computed by today's code. A finished task whose code
+    """Keys of the tasks with an ``ok`` row computed by the current code. A finished task whose code
     changed is refused (ConfigError, one line) unless ``recompute``, which runs it again."""
     done = db.ok_codes(table)
     stale = [t for t in tasks if t.key in done and done[t.key] != codes[t.key]]

@@ -13,7 +13,8 @@ The driver records it as a failed row with that error: nothing is lost silently.
 
 * ``auto`` (the default) -- :func:`auto_executor`: on a CPU, a run of two or more tasks gets a
   :class:`ProcessExecutor` with one worker per physical core and one torch thread each (two jobs
-  side by side on 2 cores finish more steps per second than one job on both cores); a single task,
+  side by side on 2 cores finish more steps per second than one job on both cores: docs/PERFORMANCE.md,
+  section 3); a single task,
   or a CUDA device (one GPU), gets the :class:`LocalExecutor` with all threads.
 * :class:`LocalExecutor` -- in-process, sequential, in the given order (stage progress).
 * :class:`ProcessExecutor` -- ``concurrent.futures.ProcessPoolExecutor`` with the *spawn* context,

@@ -110,11 +110,11 @@ class JobSpec(TaskSpec):
     def identity(self) -> dict:
         ident = {**super().identity(), "method": self.method, "params": self.params, "mode": self.mode,
                  "budget": self.budget, "grid": self.grid, "checkpoints": list(self.checkpoints)}
-        if self.budget_params:  # only when given: the keys of runs without overrides stay as they were
+        if self.budget_params:  # only when given: a job without overrides has a key without this field
             ident["budget_params"] = dict(sorted(self.budget_params.items()))
         if self.decompose:  # likewise
             ident["decompose"] = True
-        if self.task != "encode":  # likewise: encode jobs keep the keys they always had
+        if self.task != "encode":  # likewise: an encode job's key holds no reconstruct field
             ident.update(task=self.task, pc_points=self.pc_points, pc_noise=self.pc_noise)
             if self.budget is not None:  # a learned method: its training set is part of what it computes
                 ident["train_dirs"] = list(self.train_dirs)

@@ -41,7 +41,7 @@ def file_vertex_count(path) -> int | None:
 
 
 def provenance_stl_counts() -> dict[str, tuple[int, int]]:
-    """file name -> (V_merged, F) from the abc/ table of PROVENANCE.md."""
+    """file name -> (V_merged, F) from the abc/ table of the data folder's PROVENANCE.md (SHARED_DATA)."""
     rows = [line.split("|") for line in (SHARED_DATA / "PROVENANCE.md").read_text().splitlines() if line.startswith("|")]
     header = [c.strip() for c in rows[0]]
     col_v, col_f = header.index("V_merged"), header.index("F")
@@ -159,7 +159,8 @@ def test_bad_input_gives_one_line_mesh_error(tmp_path, file_name):
 
 def test_stl_reading_does_not_depend_on_trimeshs_optional_encoding_detector(tmp_path, monkeypatch):
     """trimesh guesses non-UTF-8 text with charset_normalizer, an optional dependency; without it a
-    Latin-1 ASCII STL used to fail as "unreadable (No module named 'charset_normalizer')"."""
+    Latin-1 ASCII STL still loads (decoded here, never "unreadable (No module named
+    'charset_normalizer')")."""
     monkeypatch.setitem(sys.modules, "charset_normalizer", None)  # import fails, as where it is absent
     vertices, faces = read_mesh_arrays(_write(tmp_path / "latin1.stl", ASCII_STL))
     np.testing.assert_array_equal(vertices, [[0, 0, 0], [0, 1, 0], [1, 0, 0]])  # welded: sorted unique
@@ -171,9 +172,9 @@ def test_stl_reading_does_not_depend_on_trimeshs_optional_encoding_detector(tmp_
 @pytest.mark.filterwarnings("error")
 @pytest.mark.parametrize("exponent", [-1000, 1000])
 def test_a_mesh_at_2_to_the_1000_or_its_inverse_loads_like_the_same_mesh_at_1(tmp_path, exponent):
-    """Degeneracy is judged in the canonical frame: a tetrahedron scaled by 2^-1000 (~1e-301) used to
-    be refused as "total surface area is zero", one at 2^1000 (~1e301) to warn "overflow". Scaling by
-    a power of two is exact, so both load to exactly the unit tetrahedron's canonical arrays."""
+    """Degeneracy is judged in the canonical frame: a tetrahedron scaled by 2^-1000 (~1e-301) is not
+    refused as "total surface area is zero", one at 2^1000 (~1e301) does not warn "overflow". Scaling
+    by a power of two is exact, so both load to exactly the unit tetrahedron's canonical arrays."""
     tet = np.array([[0, 0, 0], [4, 0, 0], [0, 2, 0], [0, 0, 1]], dtype=float)
     text = "f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
     def obj(vertices):  # repr: the exact float64 values

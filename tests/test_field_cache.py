@@ -89,7 +89,7 @@ def test_entry_with_64_flipped_bytes_is_rejected_recomputed_and_overwritten(tmp_
 
 
 def test_files_that_are_not_entries_are_rejected(tmp_path):
-    """A plain .npz (the format before checksums), a truncated entry, and a valid entry holding the
+    """A plain .npz (no checksum), a truncated entry, and a valid entry holding the
     wrong archive are all recomputed, never read as fields."""
     fields = box_fields()
     stats = CacheStats()

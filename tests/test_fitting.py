@@ -67,7 +67,7 @@ def test_budgets_are_data_and_paper_matches_spec():
 
 
 def test_mlp_budgets_keep_their_values_network_and_optimizer():
-    """paper, quick and tiny are today's MLP budgets: same values, same network arguments, one AdamW group."""
+    """paper, quick and tiny are MLP budgets with these values and network arguments, and one AdamW group."""
     common = dict(beta=100.0, lr_final=1e-5, weight_decay=0.01, activation="softplus", backbone="mlp",
                   grid_resolutions=(), grid_channels=0, lr_grid=0.0, lr_grid_final=0.0, fused_adam=False,
                   warmup_fraction=0.0)
@@ -219,7 +219,7 @@ def test_model_bytes_round_trip():
 
 @pytest.mark.learned
 def test_grid_backbone_fits_a_sphere_sdf_deterministically(fit_seed, measured):
-    """200 steps (~1 s) of the grid backbone on the SDF of the sphere |x| = 0.5: held-out points within
+    """200 steps of the grid backbone on the SDF of the sphere |x| = 0.5: held-out points within
     0.1 of the surface have a mean error < 0.002 (their mean |sdf| is 0.024), and the 32^3
     marching-cubes mesh of the fitted field lies within 0.01 of the sphere (grid spacing 0.065) with
     its area within 2% of the exact field's mesh; the same seed gives the same numbers. Measured

@@ -13,7 +13,7 @@
 * The geometry-guided UDF of a query above K points of a plane, with the plane's normal, is the
   query's height and its gradient the normal turned towards it, whatever the (random) weights:
   the distances are equal and the softmax weights sum to 1.
-* A ``tiny`` training (180 steps, ~5 s on one core) reconstructs a sphere of radius 0.7 from
+* A ``tiny`` training (180 steps) reconstructs a sphere of radius 0.7 from
   10,000 points at N = 32 (h = 0.065): upsampled by LGR-Net, CD 0.020-0.021 and a mean vertex
   radius error of 0.021-0.023 (about h / 3) at seeds 0-2; the bounds 0.03 and 0.035 fail a mesh a
   grid step off. With the dense-input path (input points, PCA normals): CD 0.0089 (the floor of a
@@ -80,7 +80,8 @@ def test_emc_on_an_exact_sphere_udf_is_a_closed_mesh_on_the_sphere():
 
 def test_emc_miscuts_few_cells_of_an_exact_sphere():
     # N = 48, R = 0.6: the pair test leaves a few cells near the diagonals |x| = |y| = |z| cut on
-    # the wrong edges (24 of 3,576 vertices up to 0.7 h off, a few boundary edges), as in the authors' code
+    # the wrong edges, as in the authors' code (how many: docs/PERFORMANCE.md, "Measurements moved
+    # from docstrings")
     N, R = 48, 0.6
     h = spacing(N)
     mesh = edge_marching_cubes(*_sphere_fields(N, R), snap=1e-3)

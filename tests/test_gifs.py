@@ -9,12 +9,13 @@ trip, determinism, and a ``tiny`` training that reconstructs a sphere.
   (| |x| - r |) on the cubes within 2 h. Every vertex lies on a grid edge at the zero of the linear
   interpolant of -d_a, +d_b, within 0.01 h of the sphere (the chord error of linear interpolation,
   about h^2 / (8 r) / h = 0.009 h at most); the cubes agree, so the mesh is closed (no boundary edge)
-  and its area is within 1 % of 4 pi r^2 (0.16 % measured; the largest vertex error 0.0087 h).
+  and its area is within 1 % of 4 pi r^2 (the measured margins: docs/PERFORMANCE.md, "Measurements
+  moved from docstrings").
 * Open square z = 0.1, |x|, |y| <= 0.5 (two triangles), grid 40: flags from ``ExactFields.segments``,
   UDFs from ``ExactFields.udf``. The vertices lie on the plane (UDF < 1e-6 h), the mesh has a
-  boundary and every point of the square is within 0.5 h of it (0.25 h measured: the strips of the
-  rim's cut cubes whose edges the square does not cross).
-* ``tiny`` training (200 steps, about 7 s on one core) on the 4 training parts, then a sphere cloud
+  boundary and every point of the square is within 0.5 h of it (the gap: the strips of the rim's
+  cut cubes whose edges the square does not cross; measured as above).
+* ``tiny`` training (200 steps) on the 4 training parts, then a sphere cloud
   (radius 0.7, 10,000 points) at grid 32 (h = 0.065): measured mean vertex radius error / CD-L1
   0.024 / 0.018 at seed 0, at most 0.039 / 0.029 over seeds 0-3; bounds 0.05 (0.77 h) and 0.035.
   After 1 step (every candidate cube meshed) 0.12 / 0.075, after 20 steps 0.025 / 0.15 (most of the

@@ -13,8 +13,8 @@ lands elsewhere, so each test trains three networks (seeds ``fit_seed`` to ``fit
 bounds their *median* CD. Spread of single trainings over seeds 0-4 x float paths (default, avx2,
 native) x 1 and 2 threads (scripts/measure_learned_spread.py, docs/spread/learned.md), and of the
 median of three consecutive seeds (the quantity asserted), which every bound keeps a margin of at
-least 1.2 over (completeness: CD's GT -> prediction side; on this AMD EPYC the avx2 and native paths
-give the same numbers, the thread count does not):
+least 1.2 over (completeness: CD's GT -> prediction side; on the measuring machine the avx2 and
+native paths gave the same numbers, the thread count did not):
 
   ============  ===================  ======================  ===================  =================
   method        single training CD   median of 3 trainings   median completeness  untrained control
@@ -32,13 +32,13 @@ give the same numbers, the thread count does not):
 * ``sals-knn``: completeness <= 0.016 (the networks find the box's faces) and CD <= 0.037:
   a ``tiny`` segment network sometimes marks band edges off the surface as hit (seeds 1 and 2 on
   torch's scalar kernels with 2 threads: accuracy side 0.048-0.053, CD 0.030-0.034), and a single
-  training reached CD 0.021 on an Intel Xeon.
+  training reached CD 0.021 on another machine.
 * ``occ-knn``: CD <= 0.13. A purely local encoder cannot tell the inside of a flat patch from its
   outside (the K neighbours of a point at +d and at -d from a face look the same), so the band's
   occupancy is ambiguous and marching cubes leaves sheets inside the band, more or fewer from one
   training to the next (0.042 with the ``cpu`` network on the same cube at 40k points and grid 64,
   against 0.0042 for sals-knn and 0.0041 for udf-knn there: the unsigned representations need no
-  sign). A single ``tiny`` training reached CD 0.164 on an Intel Xeon.
+  sign). A single ``tiny`` training reached CD 0.164 on another machine.
 
 The untrained control (the same architecture at its initial weights, seed ``fit_seed``, eval mode)
 must score at least twice the trained median (occ-knn: 1.5 times; measured at least 2.4, 4.4 and

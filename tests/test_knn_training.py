@@ -61,7 +61,7 @@ def test_a_batch_holds_each_samples_exact_neighbours_in_its_items_cloud(parts):
 @pytest.mark.learned
 @pytest.mark.slow
 def test_tiny_budget_trains_the_point_method_and_its_loss_drops(parts, fit_seed, measured):
-    """3 built-in parts (closed, open, non-manifold), the tiny budget (400 steps, ~6 s on one thread):
+    """3 built-in parts (closed, open, non-manifold), the tiny budget (400 steps):
     the mean loss of the last 50 steps is below half that of the first 5 (outputs start near 0, so
     the first loss is the mean clamped UDF) and below 2/3 of the L1 loss of the best constant (the
     pools' median), so the network reads the neighbourhoods. Measured over seeds 0-4 x float paths x

@@ -225,7 +225,7 @@ def test_prediction_without_edge_points_default_nan_flag():
 @pytest.mark.filterwarnings("error")
 def test_a_prediction_2_to_the_1000_times_too_large_is_scored_not_called_empty():
     """GT: cube [-1, 1]^3; prediction: the same cube scaled by s = 2^1000 (~1e301): a valid, absurdly
-    large mesh (its cross products used to overflow, so it was called "EMPTY or degenerate").
+    large mesh, not "EMPTY or degenerate" (its cross products must not overflow).
     Relative to s the GT is a point at the origin: pred -> gt is the mean distance of a point
     uniform on a face of the cube [-s, s]^3 from the origin, s * int int_[0,1]^2 sqrt(1 + y^2 + z^2)
     = 1.28079 s (quadrature, see the concentric-cubes test); gt -> pred lies in [s - sqrt 3, sqrt 3 s]
@@ -246,8 +246,8 @@ def test_a_prediction_2_to_the_1000_times_too_large_is_scored_not_called_empty()
 @pytest.mark.parametrize("exponent", [-1000, 1000])
 def test_ndc_scores_a_pair_at_2_to_the_1000_or_its_inverse_exactly_like_at_1(exponent):
     """ndc maps both meshes by the GT's box, so scaling GT and prediction by a power of two (exact)
-    must not change one bit. It did: the diagonal of a 2^-1000 box underflowed to 0 ("GT bounding
-    box has zero size") and that of a 2^1000 box overflowed."""
+    must not change one bit: the diagonal of a 2^-1000 box must not underflow to 0 ("GT bounding
+    box has zero size") nor that of a 2^1000 box overflow."""
     v, f = box(2.0)
     pv = v * 1.01 + 0.003
     unit = metric_values(M.evaluate(v, f, pv, f, preset="ndc", n_points=5_000))
@@ -257,7 +257,7 @@ def test_ndc_scores_a_pair_at_2_to_the_1000_or_its_inverse_exactly_like_at_1(exp
 
 def test_a_prediction_whose_faces_lie_on_a_line_is_empty():
     """Area 0.5e-14 on a box of side 1: below MIN_RELATIVE_AREA (1e-12) of its own size, so a line
-    up to rounding. It used to be sampled (total area > 0) into points with meaningless normals."""
+    up to rounding, not sampled (its total area > 0) into points with meaningless normals."""
     v, f = box(2.0)
     sliver = np.array([[0, 0, 0], [1, 0, 0], [0.5, 1e-14, 0]])
     r = M.evaluate(v, f, sliver, [[0, 1, 2]], n_points=5_000)

@@ -77,7 +77,7 @@ def strict_json(text: str) -> dict:
 @pytest.mark.filterwarnings("error")
 @pytest.mark.parametrize("name", sorted(DEGENERATE_PREDICTIONS))
 def test_a_degenerate_prediction_is_scored_with_its_flags_exit_0(tmp_path, capsys, name):
-    """The prediction is data: it used to exit 2 ("total surface area is zero", "NaN ...")."""
+    """The prediction is data: scored, never exit 2 ("total surface area is zero", "NaN ...")."""
     content, dropped = DEGENERATE_PREDICTIONS[name]
     (tmp_path / "gt.obj").write_text(TETRA)
     (tmp_path / name).write_text(content)
@@ -120,7 +120,7 @@ def test_a_broken_gt_a_broken_file_or_a_bad_flag_exits_2_with_one_line(tmp_path,
 @pytest.mark.filterwarnings("error")
 def test_a_pair_at_2_to_the_minus_1000_scores_exactly_like_the_pair_at_1(tmp_path, capsys):
     """The GT's canonical transform of a 2^-1000-scale pair is the unit pair's, scaled exactly: same
-    numbers bit for bit. It used to exit 2 with "total surface area is zero"."""
+    numbers bit for bit, never exit 2 with "total surface area is zero"."""
     results = []
     for scale in (1.0, 2.0**-1000):
         (tmp_path / "gt.obj").write_text(obj_text(TET * scale))

@@ -25,7 +25,7 @@ def test_validity_of_cube_square_and_nonmanifold_fan():
     got = M.mesh_validity(soup_v, np.arange(6).reshape(2, 3))
     assert (got["n_vertices"], got["boundary_edges"], got["components"]) == (6, 6, 2)
     # indices as a broken file may hold (2^31 + 1 and 2^33 - 1): two triangles sharing the edge
-    # (B, C) only, so 4 boundary edges. Keys a * 2^33 + b used to wrap around 2^64 and pair the
+    # (B, C) only, so 4 boundary edges. Keys a * 2^33 + b would wrap around 2^64 and pair the
     # edges (1, B) ~ (A, B) and (1, C) ~ (A, C): "watertight"
     a, b, c = 2**31 + 1, 2**33 - 1, 2**33 - 2
     got = M.mesh_validity(fv, np.array([[1, b, c], [a, b, c]]))

@@ -7,7 +7,7 @@ hand, the weights' round trip, determinism, and a ``tiny`` training that reconst
 * The decoder's attention weights are a mean of softmaxes over the K neighbours: each is >= 0 and
   they sum to 1 for every query.
 * The sphere: radius 0.7 at the origin, 1,000 area-uniform points (twice the ``tiny`` training
-  cloud), grid 32 (h = 0.065). A ``tiny`` training (300 steps, about 15 s on one core) reaches
+  cloud), grid 32 (h = 0.065). A ``tiny`` training (300 steps) reaches
   CD-L1 0.047 and a mean vertex radius error of 0.047 at seed 0; the bounds, 0.09 (under 1.4 h),
   fail a mesh whose sheets sit at the 3 h band's edge (0.19 off).
 """

@@ -67,7 +67,7 @@ def test_damaged_mesh_entry_is_recomputed_and_counted(tmp_path):
 
 @pytest.mark.slow
 def test_damaged_weights_are_refitted_not_used(fakes, tmp_path):
-    """Flipping 64 bytes of a cached .pt must not load silently (it once did: SDF CD 0.127 -> 0.529)."""
+    """Flipping 64 bytes of a cached .pt must not load silently: the damage is counted and the fit redone."""
     cache = tmp_path / "cache"
     args = ["--methods", "test_sdf", "--mode", "neural", "--budget", "tiny", "--grid", "24", "--eval-points", "5000",
             "--limit", "1", "--cache-dir", str(cache), "--plugin", PLUGIN, "--quiet", "--threads", "1",

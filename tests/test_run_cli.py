@@ -82,7 +82,7 @@ def test_bad_options_fail_with_one_line_before_any_work(fakes, tmp_path, capsys,
 @pytest.mark.parametrize("text, ok", [("no", False), ("False", False), ("0", False), ("off", False),
                                       ("YES", True), ("true", True), ("1", True), ("maybe", None)])
 def test_boolean_method_params_parse_as_booleans(tmp_path, capsys, text, ok):
-    """sals.normals=False used to be True (any non-empty string)."""
+    """sals.normals=False is False, not True (as bool() of any non-empty string would be)."""
     from runner.cli import parse_method_params
 
     if ok is None:
@@ -221,7 +221,8 @@ def test_rerun_skips_finished_jobs_and_retries_failed(fakes, tmp_path):
 
 @pytest.mark.slow
 def test_second_resume_keeps_the_saved_configuration(fakes, tmp_path):
-    """after one --resume, the next one used to run the defaults (builtin, neural, all methods)."""
+    """after one --resume, the next one runs the saved configuration, not the defaults (builtin,
+    neural, all methods)."""
     out, cache = tmp_path / "run", tmp_path / "cache"
     assert main(oracle_args(out, cache)) == 0
     saved = json.loads((out / "config.json").read_text())["config"]
@@ -233,7 +234,7 @@ def test_second_resume_keeps_the_saved_configuration(fakes, tmp_path):
 
 
 def test_a_different_protocol_is_refused_naming_the_settings(fakes, tmp_path, capsys):
-    """--resume --grid 32 on a grid-64 run used to mix both in one table."""
+    """--resume with another grid is refused: one table never mixes two grids."""
     out, cache = tmp_path / "run", tmp_path / "cache"
     assert main(oracle_args(out, cache)) == 0
     capsys.readouterr()
@@ -261,7 +262,7 @@ def test_adding_a_method_to_a_run_keeps_its_protocol(fakes, tmp_path):
 
 
 def test_a_locked_run_directory_is_refused_naming_its_holder(fakes, tmp_path, capsys):
-    """two runs into one --out used to both write."""
+    """two runs into one --out: the second is refused, only one writes."""
     out = tmp_path / "run"
     out.mkdir()
     fd = os.open(out / ".salsbench.lock", os.O_RDWR | os.O_CREAT)

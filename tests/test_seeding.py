@@ -1,4 +1,5 @@
-"""benchmark.seeding: the job's streams, and that adding the calibration stream left the others as they were."""
+"""benchmark.seeding: the job's streams, and that the first three are those of a three-way spawn
+(the calibration stream is spawned fourth)."""
 
 from __future__ import annotations
 

@@ -18,7 +18,8 @@ _PAIR_BLOCK = 100_000
 _DOT_CHUNK = 4_000_000
 
 #: Default work limit of :func:`sharp_edge_points`: an upper bound on the ordered candidate pairs
-#: (cell counts times 27-neighbourhood counts, ~3x the true count). A 1M-sample CAD mesh: 1e7-1e8.
+#: (cell counts times 27-neighbourhood counts, above the true count; the bound of 1M-sample CAD
+#: meshes: docs/PERFORMANCE.md, "Measurements moved from docstrings").
 MAX_EDGE_PAIRS = 1_000_000_000
 
 
@@ -46,7 +47,8 @@ def sharp_edge_points(
        pair of their points has ``angle <= dev_c0 + angle(m_c0, m_c1) + dev_c1``; if that bound is below
        ``arccos(dot_threshold)`` (minus 1e-6 rad for rounding) for all 27 neighbours of c0, no pair
        touching c0 can qualify: c0 is *safe*. A qualifying pair therefore joins two points of unsafe
-       cells, and the search is restricted to them (typically 5-40% of the samples).
+       cells, and the search is restricted to them (the share of the samples they hold on CAD meshes:
+       docs/PERFORMANCE.md, "Measurements moved from docstrings").
     2. *Exact search* on the remaining candidates: scipy ``cKDTree.query_pairs(radius)`` (inclusive
        ``<=``, like sklearn's ``query_radius`` that NDC uses), in slabs of cell layers along the
        longest axis (each slab plus one layer of halo), so memory stays bounded.
@@ -93,7 +95,7 @@ def sharp_edge_points(
     block_last_layer = np.concatenate([block_first_layer[1:], [layer[-1] + 1]])  # inclusive halo layer
     starts = np.searchsorted(layer, block_first_layer, side="left")
     stops = np.searchsorted(layer, block_last_layer, side="right")
-    for start, stop in zip(starts, stops):  # a loop over chunks (a thread pool gave no speed-up: GIL)
+    for start, stop in zip(starts, stops):  # a loop over chunks, one at a time in this thread
         members = cand[start:stop]
         pairs = cKDTree(points[members]).query_pairs(float(radius), output_type="ndarray")
         for chunk in range(0, len(pairs), _DOT_CHUNK):

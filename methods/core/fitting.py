@@ -52,8 +52,8 @@ class Budget:
     cell no sample visits to 0, and cells the samples rarely reach toward it); the grid settings
     are empty for ``'mlp'`` budgets and required for ``'grid'`` ones.
     ``fused_adam``: torch's fused AdamW kernel (the same update to float rounding; much faster than
-    the default per-tensor loop on a feature grid's values). Off for the MLP budgets, whose numbers
-    stay those of the default kernel.
+    the default per-tensor loop on a feature grid's values: docs/PERFORMANCE.md, section 8). Off for
+    the MLP budgets, whose numbers stay those of the default kernel.
     ``log_every``: the loss is checked for NaN/inf and reported to ``progress`` every so many steps.
     ``warmup_fraction``: the first ``round(warmup_fraction * iterations)`` steps ramp both learning
     rates linearly up to their schedule (:func:`methods.core.schedules.warmup_cosine_lr`); 0 = none (the MLP budgets).
@@ -103,7 +103,7 @@ class Budget:
 
 #: The budgets (why these values, with the measurements: docs/PERFORMANCE.md, "The cpu budget"):
 #: *paper*: the paper's network and schedule (a GPU budget). *quick*: a 5 x 128 MLP without a grid,
-#: the CPU reference of a plain MLP, at the paper's lr 1e-3. *tiny*: tests (a few seconds a fit).
+#: the CPU reference of a plain MLP, at the paper's lr 1e-3. *tiny*: tests (200 steps of 1,024 samples).
 #: *cpu*: the default of run_benchmark.py, the same for every method: the grid backbone at CPU size
 #: (levels 16/32/64 x 4 channels, raw xyz concatenated, a 3 x 64 Softplus head), AdamW at 1e-2 for grid
 #: and head after a 5 % linear warm-up, cosine-decayed to 1e-4 at the last of 3,000 steps of 4,096

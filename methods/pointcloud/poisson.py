@@ -11,9 +11,9 @@ Steps, all pymeshlab (MeshLab's filters), on the raw points (no normals given):
 3. density trimming as users apply it (PoissonRecon's SurfaceTrimmer): the filter's per-vertex scalar
    is the sampling density in octree-depth units (about ``depth - 0.5`` on a uniformly sampled
    surface); vertices more than ``trim_depth`` below ``depth`` are removed with their faces: the
-   low-density membrane Poisson spans over holes and open boundaries. Measured at depth 7 with 40k
-   points: a sphere keeps every vertex (densities 6.3-6.9); a hemisphere loses 1,479 of 34,724
-   (densities down to 2.0) at 2.0, 2,671 at 1.0. 0 keeps the untrimmed surface.
+   low-density membrane Poisson spans over holes and open boundaries (what it removes from a
+   sphere and a hemisphere: docs/PERFORMANCE.md, "Measurements moved from docstrings"). 0 keeps the
+   untrimmed surface.
 
 Poisson's output is a closed (indicator-function) surface: open boundaries and non-manifold
 branchings of the input do not survive it, except where trimming cuts the membrane.

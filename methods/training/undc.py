@@ -90,9 +90,10 @@ class UNDCBudget:
         return dataclasses.asdict(self)
 
 
-#: The named budgets. ``tiny``: seconds, for tests. ``cpu``: both networks in about 5 min on one core
-#: (1,200 Adam steps each of 2 crops of 16^3 output points, lr 1e-3 halved every 400 steps: NDC's 1e-4
-#: is for millions of steps), after labelling 60 parts and the Thingi10K meshes at 33^3 and 65^3.
+#: The named budgets. ``tiny``: for tests. ``cpu``: both networks on one CPU core (its cost:
+#: docs/PROTOCOL.md, "UNDC on the UDF") (1,200 Adam steps each of 2 crops of 16^3 output points, lr 1e-3
+#: halved every 400 steps: NDC's 1e-4 is for millions of steps), after labelling 60 parts and the
+#: Thingi10K meshes at 33^3 and 65^3.
 UNDC_BUDGETS: dict[str, UNDCBudget] = {
     "tiny": UNDCBudget("tiny", shapes=2, thingi=False, grids=(33,), crop=8, batch=2, bool_steps=30,
                        float_steps=30, lr=1e-3, lr_half_life=0, channels=8, log_every=5),

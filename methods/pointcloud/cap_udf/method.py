@@ -107,8 +107,8 @@ class CAPUDFBudget:
             raise ValueError(f"cap-udf budget '{self.name}': step1 {self.step1} > steps {self.steps}")
 
 
-#: *paper*: the authors' ``confs/base.conf`` (a GPU). *cpu*: one core, about a minute a shape.
-#: *tiny*: tests.
+#: *paper*: the authors' ``confs/base.conf`` (a GPU). *cpu*: a reduced network and schedule for one
+#: CPU core (its cost per shape: docs/PROTOCOL.md, "cap-udf"). *tiny*: tests.
 CAP_UDF_FAMILY = register_budget_family("cap-udf", (
     CAPUDFBudget("paper", width=256, hidden_layers=8, skip=4, queries=1_000_000, batch=5000, batch_step2=20000,
                  step1=40_000, steps=60_000, warm_up=1000),

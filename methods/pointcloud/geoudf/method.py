@@ -149,10 +149,10 @@ class GeoUDFBudget(TrainingSet):
 #: K 20, width 128, patch head 1152 -> 256 -> 128 -> 64 -> 18, R 16, UDF K 10 with the 64-128-128-128
 #: point MLP and 263 -> 256 -> 128 -> 32 -> 1 weight heads; items of 3,000 input points and 2,048
 #: queries; stage 1: batches of 16, Adam 1e-3, 100 epochs of the 30,661 ShapeNet training shapes
-#: (191,600 steps); stage 2: batches of 12, Adam 1e-4, 300 epochs (766,500 steps). *cpu*: training
-#: within ~15 min on one core: width 32, patch head 64 -> 32 -> 16, the UDF MLP 32-64-64-64 and
-#: heads 64 -> 32 -> 16; the authors' K, R, UDF K, learning rates and loss weights; items of 512
-#: points and 512 queries, batches of 4, 1,000 + 2,000 steps. *tiny*: tests (seconds).
+#: (191,600 steps); stage 2: batches of 12, Adam 1e-4, 300 epochs (766,500 steps). *cpu*: a training
+#: for one CPU core (its cost: docs/PROTOCOL.md, "geoudf"): width 32, patch head 64 -> 32 -> 16, the
+#: UDF MLP 32-64-64-64 and heads 64 -> 32 -> 16; the authors' K, R, UDF K, learning rates and loss
+#: weights; items of 512 points and 512 queries, batches of 4, 1,000 + 2,000 steps. *tiny*: tests.
 GEOUDF_FAMILY = register_budget_family("geoudf", (
     GeoUDFBudget("paper", knn=20, width=128, coefficient_widths=(256, 128, 64), up_ratio=16, udf_k=10,
                  feature_widths=(64, 128, 128, 128), attention_widths=(256, 128, 32), patch_points=3_000,

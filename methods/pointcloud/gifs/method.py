@@ -94,10 +94,11 @@ class GIFSBudget(TrainingSet):
 #: *paper*: the authors' configuration (``models/local_model.py``, ``configs/config_loader.py``,
 #: ``configs/shapenet_cars.txt``): voxel grid 256^3, encoder widths 16, 32, 64, 128, 128, 128, decoders
 #: of width 256 (512 -> 256 -> 256 -> 256), items of 50,000 pairs, batches of 2, Adam 1e-6; their
-#: schedule is wall-clock (released checkpoint at 44 h), 400k steps is our stand-in. *cpu*: training
-#: within ~15 min on one core: voxel grid 96^3 (1.3 h at N = 128), widths 8, 16, 32, 64, 64, 64, decoders
-#: of width 128, items of 2,048 pairs, batches of 2, Adam 1e-4 (1e-6 learns nothing in a thousand steps),
-#: 900 steps. *tiny*: tests (seconds).
+#: schedule is wall-clock (released checkpoint at 44 h), 400k steps is our stand-in. *cpu*: a training
+#: for one CPU core (its cost: docs/PROTOCOL.md, "gifs"; why the voxel grid and the learning rate:
+#: docs/PERFORMANCE.md, "Measurements moved from docstrings"): voxel grid 96^3, widths 8, 16, 32, 64,
+#: 64, 64, decoders of width 128, items of 2,048 pairs, batches of 2, Adam 1e-4, 900 steps. *tiny*:
+#: tests.
 GIFS_FAMILY = register_budget_family("gifs", (
     GIFSBudget("paper", resolution=256, channels=(16, 32, 64, 128, 128, 128), hidden=256, batch=2, pairs=50_000,
                steps=400_000, lr=1e-6, log_every=500,

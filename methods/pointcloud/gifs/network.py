@@ -41,7 +41,7 @@ __all__ = ["FLAG_BIAS_INIT", "voxelize_cloud", "VoxelEncoder", "Decoder", "GIFSN
 
 #: Initial bias of the flag decoder's output layer: the mean of the balanced labels, so the output
 #: ReLU starts active for every pair (with torch's default bias, ~0, a step that pushes every
-#: pre-activation below 0 leaves the flag head at 0 for good: seen in short trainings at lr 1e-3).
+#: pre-activation below 0 leaves the flag head at 0 for good; docs/PROTOCOL.md, "gifs").
 FLAG_BIAS_INIT = 0.5
 
 

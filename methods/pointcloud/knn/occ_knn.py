@@ -11,11 +11,11 @@ closes open surfaces and cannot keep a non-manifold branching.
 
 The shared encoder is purely local, and occupancy is not a local quantity: the K neighbours of
 x + d n and of x - d n beside a flat patch with normal n are mirror images, so the network cannot
-tell the inside from the outside there (only curvature hints at it). Measured at the ``cpu``
-budget: training BCE 0.59 after 1,500 steps (a constant guess: ln 2 = 0.69 on balanced labels);
-CD 13.1e-3 on the 22 ABC parts (udf-knn: 2.6e-3) and 42e-3 on a plain box, where the band keeps
-sheets of p ~ 0.5. POCO and ConvONet get the sign from a large receptive field; here the encoder is
-the shared one so that the comparison isolates the representation, and this is the price.
+tell the inside from the outside there (only curvature hints at it): its training BCE stays
+above 0 and the band keeps sheets of p ~ 0.5 (the numbers at the ``cpu`` budget: docs/PROTOCOL.md,
+"Point-cloud reconstruction"; docs/PERFORMANCE.md, "Measurements moved from docstrings"). POCO and
+ConvONet get the sign from a large receptive field; here the encoder is the shared one so that the
+comparison isolates the representation, and this is the price.
 """
 
 from __future__ import annotations

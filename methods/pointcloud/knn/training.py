@@ -107,10 +107,10 @@ class KNNBudget(TrainingSet):
 #: *paper*: the paper's K-NN network (K = 20; encoders 4 -> 256, 4 x 256, 256 -> 256; head 512 -> 256,
 #: 4 x 256, 256 -> out; batches of 4 shapes x 5,120 samples, each item with 40k input points; AdamW
 #: 1e-3 constant, 10k steps; 100 training shapes, 1M labelled samples and 1M surface points each; GPU
-#: scale). *cpu*: one learned method trains in about 20 min on a 2-core machine: the paper's K and
+#: scale). *cpu*: sized for a 2-core machine (its training time: that section): the paper's K and
 #: cloud size (the local encoder sees the density it is tested at), width 64 with 2 hidden layers in
 #: each encoder and the head, batches of 4 shapes x 1,024 samples, 1,500 steps, 24 built-in training
-#: parts with pools of 200k samples and 200k surface points. *tiny*: tests (seconds): K = 16, width 32,
+#: parts with pools of 200k samples and 200k surface points. *tiny*: tests: K = 16, width 32,
 #: one hidden layer, lr 3e-3, 400 steps of 2 x 256 samples, 4 parts, pools of 20k, clouds of 10k points
 #: (fewer points do not locate the surface to a fraction of a segment's length: the segment network
 #: then cannot learn its s).

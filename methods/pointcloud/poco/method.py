@@ -95,11 +95,12 @@ class POCOBudget(TrainingSet):
 #: FKAConv backbone of width 64 and 4 subsampled levels (64 .. 1024 channels), 16 neighbours per
 #: convolution, latent 32, decoder K 64 with 64 heads, items of 3,000 input points and 2,000
 #: labelled queries, batches of 16, Adam 1e-3 for 100k steps (``training_iter_nbr``; the ABC
-#: file's ``iter_nbr`` is read by nothing). *cpu*: training within ~15 min on one core: width 32
-#: (the FKAConv alignment, whose cost does not depend on the width, dominates), the paper's levels,
-#: convolution K and item clouds, decoder K 32 with 16 heads, items of 1,024 queries, batches of 4,
-#: 1,200 steps. *tiny*: tests (seconds). The training sets are those of the K-NN budgets of the same
-#: name (paper: 100 parts, pools of 1M; cpu: 24 parts, pools of 200k; tiny: 4 parts, pools of 20k).
+#: file's ``iter_nbr`` is read by nothing). *cpu*: a training for one CPU core (its cost:
+#: docs/PROTOCOL.md, "poco"): width 32 (the FKAConv alignment, whose cost does not depend on the
+#: width, dominates), the paper's levels, convolution K and item clouds, decoder K 32 with 16 heads,
+#: items of 1,024 queries, batches of 4, 1,200 steps. *tiny*: tests. The training sets are those of
+#: the K-NN budgets of the same name (paper: 100 parts, pools of 1M; cpu: 24 parts, pools of 200k;
+#: tiny: 4 parts, pools of 20k).
 POCO_FAMILY = register_budget_family("poco", (
     POCOBudget("paper", hidden=64, levels=4, conv_k=16, latent=32, decoder_k=64, heads=64, input_points=3_000,
                queries=2_000, batch=16, steps=100_000, lr=1e-3, log_every=500,
