@@ -22,6 +22,8 @@ import io
 import numpy as np
 from PIL import Image
 
+from methods.extractors.mesh_ops import drop_unreferenced_vertices
+
 BACKGROUND = np.array([1.0, 1.0, 1.0])  # white: blends into the report's cards
 BASE_COLOR = np.array([0.62, 0.72, 0.84])  # soft steel blue
 GT_COLOR = np.array([0.78, 0.76, 0.72])  # warm grey (ground truth)
@@ -161,8 +163,7 @@ def face_subset(vertices, faces, max_faces: int, seed: int = 0):
     if len(faces) <= max_faces:
         return np.asarray(vertices), faces
     keep = np.sort(np.random.default_rng(seed).choice(len(faces), max_faces, replace=False))
-    used, inverse = np.unique(faces[keep], return_inverse=True)
-    return np.asarray(vertices)[used], inverse.reshape(-1, 3)
+    return drop_unreferenced_vertices(np.asarray(vertices), faces[keep])
 
 
 def render_mesh(
