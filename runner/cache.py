@@ -222,25 +222,34 @@ class RunCaches:
     def _path(self, kind: str, method: str, key: str, suffix: str) -> Path | None:
         return None if self.root is None else self.root / kind / f"{method}_{key}{suffix}"
 
-    def _read(self, path: Path | None, kind: str) -> bytes | None:
+    def _read(self, path: Path | None) -> bytes | None:
         if path is None:
             return None
         try:
-            data = read_checked(path)
+            return read_checked(path)
         except CorruptEntry as exc:
             self.stats.reject(exc)
             return None
-        if data is not None:
-            self.stats.hit(kind)
-        return data
 
     # -- weights ----------------------------------------------------------------------------
     def load_weights(self, method, key: str, device):
-        """(model, final loss) from the cache, or None (absent or damaged: the caller fits)."""
+        """(model, final loss) from the cache, or None (absent, damaged or refused: the caller fits
+        and overwrites the entry). An entry that is not a plain weights record, e.g. one that would
+        run code when unpickled, is refused unread and counted as rejected."""
         from methods.core import fitting
+        from methods.core.weights import WeightsError
 
-        data = self._read(self._path("weights", method.fit_name, key, ".pt"), "weights")
-        return None if data is None else fitting.model_from_bytes(data, device=device, method_name=method.fit_name)
+        path = self._path("weights", method.fit_name, key, ".pt")
+        data = self._read(path)
+        if data is None:
+            return None
+        try:
+            loaded = fitting.model_from_bytes(data, device=device, method_name=method.fit_name)
+        except (WeightsError, ValueError) as exc:
+            self.stats.reject(f"{path}: {exc}")
+            return None
+        self.stats.hit("weights")
+        return loaded
 
     def save_weights(self, method, key: str, fit, budget) -> None:
         from methods.core import fitting
@@ -263,13 +272,15 @@ class RunCaches:
     # -- meshes -----------------------------------------------------------------------------
     def load_mesh(self, method: str, key: str):
         """(vertices, faces, timings, info, fit_loss) from the cache, or None."""
-        data = self._read(self._path("meshes", method, key, ".npz"), "mesh")
+        data = self._read(self._path("meshes", method, key, ".npz"))
         if data is None:
             return None
-        with np.load(io.BytesIO(data)) as z:
+        with np.load(io.BytesIO(data), allow_pickle=False) as z:
             loss = float(z["fit_loss"])
-            return (np.asarray(z["vertices"]), np.asarray(z["faces"]), json.loads(str(z["timings"])),
+            mesh = (np.asarray(z["vertices"]), np.asarray(z["faces"]), json.loads(str(z["timings"])),
                     json.loads(str(z["info"])), None if np.isnan(loss) else loss)
+        self.stats.hit("mesh")
+        return mesh
 
     def save_mesh(self, method: str, key: str, vertices, faces, timings: dict, info: dict, fit_loss) -> None:
         path = self._path("meshes", method, key, ".npz")

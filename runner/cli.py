@@ -258,8 +258,11 @@ def configure(args: argparse.Namespace, run_dir: Path | None) -> RunConfig:
     else:
         source = args.config or (recipe_path(args.recipe) if args.recipe else None)
         base = RunConfig.load(source) if source else RunConfig()
+    flags = _overrides(args, base.plugins)
+    if "budget" in flags and {**base.to_dict(), **flags}["mode"] == "oracle":
+        raise ConfigError("--budget needs --mode neural (oracle mode fits nothing)")
     try:
-        config = typed_settings(RunConfig(**{**base.to_dict(), **_overrides(args, base.plugins)}))
+        config = typed_settings(RunConfig(**{**base.to_dict(), **flags}))
     except TypeError as exc:
         raise ConfigError(str(exc)) from None
     if saved is not None:
@@ -354,4 +357,9 @@ def _plan(args: argparse.Namespace, out: Path):
 
         check_writable_dir(cache_root(config.cache_dir), "--cache-dir")
     plan = resolve(config)
+    saved, now = RunDirectory(out).read_record().get("resolved", {}), plan.record()
+    for key in ("train_dirs", "training_set"):  # compared where both invocations train learned methods
+        if saved.get(key) and now[key] and saved[key] != now[key]:
+            raise ConfigError(f"--out {out} holds a run trained on another training set ({key} {saved[key]} there, "
+                              f"{now[key]} now); use another --out")
     return dataclasses.replace(plan, config=dataclasses.replace(config, methods=plan.methods))

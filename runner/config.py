@@ -275,6 +275,8 @@ class RunConfig:
         unknown = sorted(set(values) - set(known))
         if unknown:
             raise ConfigError(f"{where}: unknown setting(s) {', '.join(unknown)}; known: {', '.join(known)}")
+        if values.get("mode") == "oracle" and values.get("budget") is not None:
+            raise ConfigError(f"{where}: budget needs mode neural (oracle mode fits nothing)")
         return cls(**dict(values))
 
     @classmethod

@@ -46,7 +46,9 @@ class Plan:
         (``{family: record}``; empty in oracle mode and for classic reconstruction). preset : the
         metric preset.
     eval_points : effective metric samples per mesh. dataset_options : how workers build the dataset.
-    shapes : shape names in dataset order.
+    shapes : shape names in dataset order. train_dirs : the extra training folders of the learned
+    methods (resolved: ``--train-dir``, else the default); training_set : {folder: digest of its mesh
+    files} (:func:`runner.training.training_folders_digest`), part of the run's identity.
     """
 
     config: RunConfig
@@ -60,6 +62,7 @@ class Plan:
     sweep: dict[str, tuple] = field(default_factory=dict)
     variants: tuple["Variant", ...] = ()
     train_dirs: tuple[str, ...] = ()
+    training_set: dict[str, str] = field(default_factory=dict)
 
     def record(self) -> dict[str, Any]:
         """The resolved facts for config.json (JSON-ready)."""
@@ -67,7 +70,7 @@ class Plan:
 
         return {"methods": list(self.methods), "method_params": self.method_params,
                 "sweep": {k: list(v) for k, v in self.sweep.items()}, "sweep_keys": list(self.sweep),
-                "train_dirs": list(self.train_dirs),
+                "train_dirs": list(self.train_dirs), "training_set": dict(self.training_set),
                 "budget": {f: budget_values(b) for f, b in self.budgets.items()} or None,
                 "metric_preset": self.preset.to_dict(), "eval_points": self.eval_points,
                 "protocol": self.preset.describe(self.eval_points),
@@ -138,8 +141,12 @@ def resolve(config: RunConfig) -> Plan:
             raise ConfigError(f"--pc-points does not apply to dataset '{config.dataset}': its files give the points")
     n = config.eval_points if config.eval_points is not None else preset.n_points
     sweep, variants = _variants(config, methods)
-    train_dirs = _train_dirs(config, methods) if budgets and config.task == "reconstruct" else ()
-    return Plan(config, methods, params, budgets, preset, int(n), options, tuple(shapes), sweep, variants, train_dirs)
+    learned = any(METHODS.get(m).learned for m in methods)
+    train_dirs = _train_dirs(config, methods) if budgets and learned else ()
+    from runner.training import training_folders_digest
+
+    return Plan(config, methods, params, budgets, preset, int(n), options, tuple(shapes), sweep, variants, train_dirs,
+                training_folders_digest(train_dirs))
 
 
 def _train_dirs(config: RunConfig, methods: tuple[str, ...]) -> tuple[str, ...]:

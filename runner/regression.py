@@ -1,6 +1,7 @@
 """Regression check on a frozen ABC subset against committed baseline tables.
 
     python -m runner.regression                      # run both tiers, compare, exit 1 on drift
+                                                     # (exit 4: the ABC subset's folder is absent)
     python -m runner.regression --tier oracle        # one tier
     python -m runner.regression --update-baselines   # rewrite reports/baselines/<tier>/ (review the diff!)
 
@@ -323,6 +324,11 @@ def mean_tolerances_of(tier: Tier, baseline: pd.DataFrame) -> pd.DataFrame | Non
     return spread_tolerances(pd.read_csv(path), baseline)
 
 
+#: The exit status when the subset's folder is absent: neither a pass (0) nor a drift (1), so a CI
+#: log tells a run that compared nothing from one that passed.
+EXIT_NO_DATA = 4
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m runner.regression", description=__doc__.split("\n\n")[0])
     parser.add_argument("--tier", choices=[*TIERS, "all"], default="all", help="which tier(s) to run (default: all)")
@@ -346,8 +352,9 @@ def main(argv: list[str] | None = None) -> int:
                      "--update-baselines or --measure-spread (a comparison runs the methods of the committed baseline)")
 
     if not args.data_dir.is_dir():
-        print(f"regression skipped: {args.data_dir} is absent (the ABC subset lives in ../shared/data/abc)")
-        return 0
+        print(f"regression not run: {args.data_dir} is absent (the ABC subset lives in ../shared/data/abc); "
+              f"exit {EXIT_NO_DATA}")
+        return EXIT_NO_DATA
     problems = verify_manifest(args.data_dir)
     if problems:
         print("regression: the pinned ABC subset changed; refusing to compare against it:", file=sys.stderr)

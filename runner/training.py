@@ -14,6 +14,7 @@ network another job is training waits on the entry's lock (``locks/``) and then 
 
 from __future__ import annotations
 
+import hashlib
 from functools import lru_cache
 from pathlib import Path
 from typing import Callable
@@ -24,6 +25,23 @@ from runner.tasks import digest
 
 #: Extra training meshes used when a run names none: the Thingi10K meshes of ../shared/data.
 DEFAULT_TRAIN_DIR = REPO.parent / "shared" / "data" / "thingi10k"
+
+
+def training_folders_digest(dirs: tuple[str, ...]) -> dict[str, str]:
+    """{folder: 16 hex digits of the SHA-256 over its mesh files' relative paths and bytes}: what a
+    run's extra training meshes are, part of its identity (a folder whose files changed is another
+    training set)."""
+    from datasets import get_dataset
+
+    digests = {}
+    for folder in dirs:
+        dataset = get_dataset("meshes", data_dir=folder)
+        h = hashlib.sha256()
+        for path in dataset.files:
+            h.update(path.relative_to(dataset.data_dir).as_posix().encode() + b"\0")
+            h.update(hashlib.sha256(path.read_bytes()).digest())
+        digests[folder] = h.hexdigest()[:16]
+    return digests
 
 
 def default_train_dirs() -> tuple[str, ...]:
@@ -62,6 +80,7 @@ def trained_network(method, budget, train_dirs: tuple[str, ...], cache_root: str
     """(model in eval mode, facts) of ``method`` at ``budget`` (its own :meth:`train_network`): from the cache, or
     trained now (and cached). Facts: ``network_key``, ``trained`` (1 if trained here), and after a
     training ``train_steps``, ``train_loop_s``, ``train_samples_per_s``, ``train_final_loss``."""
+    from methods.core.weights import WeightsError
     from methods.pointcloud.training_set import DEFAULT_TRAINING_SEED
 
     key, shapes = network_key(method, budget, train_dirs)
@@ -76,9 +95,15 @@ def trained_network(method, budget, train_dirs: tuple[str, ...], cache_root: str
                 stats.reject(exc)
             data = None
         if data is not None:
-            if stats is not None:
-                stats.hit("network")
-            return method.network_from_bytes(data, device=device), facts
+            try:
+                model = method.network_from_bytes(data, device=device)
+            except (WeightsError, ValueError) as exc:  # not a plain weights record: refused unread, retrained
+                if stats is not None:
+                    stats.reject(f"{path}: {exc}")
+            else:
+                if stats is not None:
+                    stats.hit("network")
+                return model, facts
         result = method.train_network(list(shapes), budget, seed=DEFAULT_TRAINING_SEED, device=device,
                                       progress=progress)
         write_checked(path, method.network_to_bytes(result, budget))

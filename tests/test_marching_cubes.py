@@ -96,3 +96,20 @@ def test_far_region_enclosed_by_the_band_is_inside():
     occ = far_occupancy(known)
     assert occ[12, 12, 12] == 1 and occ[0, 0, 0] == 0 and occ[5, 5, 5] == 0  # inside, outside, band
     assert occ[6:18, 6:18, 6:18].all() and occ.sum() == 12 ** 3
+
+
+def test_only_scikit_images_no_surface_reads_as_an_empty_mesh(monkeypatch):
+    import methods.extractors.marching_cubes as mc
+
+    def no_surface(volume, **options):
+        raise RuntimeError("No surface found at the given iso value.")
+
+    monkeypatch.setattr(mc, "_skimage_marching_cubes", no_surface)
+    assert len(marching_cubes_grid(sphere_sdf(), 0.0).faces) == 0
+
+    def bug(volume, **options):
+        raise ValueError("a bug in the extraction")
+
+    monkeypatch.setattr(mc, "_skimage_marching_cubes", bug)
+    with pytest.raises(ValueError, match="a bug in the extraction"):  # fails the job with its message
+        marching_cubes_grid(sphere_sdf(), 0.0)

@@ -84,3 +84,17 @@ def test_damaged_weights_are_refitted_not_used(fakes, tmp_path):
     a, b = (pd.read_csv(tmp_path / r / "results.csv").iloc[0] for r in ("a", "b"))
     assert b["cache_rejected"] == 1 and b["fit_s"] > 0        # refitted, and the damage counted
     assert b["cd"] == a["cd"] and b["fit_loss"] == a["fit_loss"]  # the same fit as the first time
+
+
+def test_a_weights_entry_that_would_run_code_is_refused_unread_and_refitted(tmp_path):
+    from benchmark.storage import write_checked
+    from methods.base import get_method
+    from tests.test_weights import crafted_weights
+
+    stats = CacheStats()
+    caches = RunCaches(tmp_path / "cache", stats)
+    method = get_method("sdf")
+    write_checked(caches._path("weights", method.fit_name, "k", ".pt"), crafted_weights(tmp_path / "ran"))
+    assert caches.load_weights(method, "k", "cpu") is None  # the job fits afresh and overwrites the entry
+    assert not (tmp_path / "ran").exists() and stats.hits == []
+    assert len(stats.rejected) == 1 and "refused unread" in stats.rejected[0] and "\n" not in stats.rejected[0]

@@ -70,6 +70,7 @@ def one_error_line(capsys) -> str:
     (["--address", "auto"], "--address only applies to --executor ray"),
     (["--limit", "0"], "--limit='0': expected int in [1, inf)"),
     (["--plugin", "no_such_module_xyz"], "--plugin no_such_module_xyz"),
+    (["--budget", "paper"], "--budget needs --mode neural (oracle mode fits nothing)"),
 ])
 def test_bad_options_fail_with_one_line_before_any_work(fakes, tmp_path, capsys, args, message):
     out = tmp_path / "run"
@@ -410,7 +411,8 @@ def test_bad_checkpoints_are_refused(fakes, tmp_path, capsys, value, message):
     except SystemExit as exc:  # argparse's own one-line error
         code = exc.code
     assert code == EXIT_REFUSED and message in one_error_line(capsys)
-    assert main(args + ["--mode", "oracle", "--checkpoints", "0.5"]) == EXIT_REFUSED
+    oracle = ["--methods", "test_sdf", "--out", str(tmp_path / "r"), "--plugin", PLUGIN, "--mode", "oracle"]
+    assert main(oracle + ["--checkpoints", "0.5"]) == EXIT_REFUSED
     assert "--checkpoints needs --mode neural" in one_error_line(capsys)
 
 

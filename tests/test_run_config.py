@@ -71,3 +71,9 @@ def test_resolve_types_method_params_and_lists_shapes():
         resolve(RunConfig(mode="oracle", methods=("sals",), method_params={"sals": {"o_threshold": "2"}}))
     with pytest.raises(ConfigError, match="unknown encode budget 'huge'; known encode budgets: paper, quick, tiny, cpu, cpu-mlp, tiny-grid"):
         resolve(RunConfig(budget="huge"))
+
+
+def test_a_settings_file_with_a_budget_in_oracle_mode_is_refused():
+    with pytest.raises(ConfigError, match="run.toml: budget needs mode neural"):
+        RunConfig.from_mapping({"mode": "oracle", "budget": "paper"}, where="run.toml")
+    assert RunConfig.from_mapping({"mode": "oracle", "budget": None}).budget is None  # a saved oracle run

@@ -109,3 +109,28 @@ def test_the_knn_recipe_sweeps_k_over_the_learned_method_only(tmp_path):
     assert len(learned) == 9 and {j.budget_params["k"] for j in learned} == {10, 20, 50}
     assert len(classic) == 3 and all(j.budget is None and not j.budget_params for j in classic)  # one per density
     assert {j.pc_points for j in classic} == {10_000, 40_000, 100_000}
+
+
+def test_a_run_directory_refuses_another_training_set(tmp_path, capsys):
+    import json
+
+    import trimesh
+
+    from runner.cli import _plan, build_parser
+
+    extra = tmp_path / "extra"
+    extra.mkdir()
+    trimesh.creation.box(extents=(1.0, 0.6, 0.4)).export(extra / "box.ply")
+    out = tmp_path / "run"
+    args = build_parser().parse_args(["--task", "reconstruct", "--methods", "sals-knn", "--limit", "1",
+                                      "--train-dir", str(extra), "--out", str(out)])
+    plan = _plan(args, out)
+    assert plan.record()["training_set"] == {str(extra.resolve()): plan.training_set[str(extra.resolve())]}
+    out.mkdir()
+    (out / "config.json").write_text(json.dumps({"config": plan.config.to_dict(), "resolved": plan.record()}))
+    assert _plan(args, out).training_set == plan.training_set  # the same files: the same run
+    trimesh.creation.box(extents=(1.0, 0.6, 0.5)).export(extra / "box.ply")  # the folder now holds other meshes
+    assert main(["--task", "reconstruct", "--methods", "sals-knn", "--limit", "1", "--train-dir", str(extra),
+                 "--out", str(out), "--quiet"]) == EXIT_REFUSED
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "trained on another training set (training_set" in err, err

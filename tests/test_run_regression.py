@@ -167,3 +167,10 @@ def test_subset_lists_are_consistent():
 @requires_shared("abc")
 def test_committed_manifest_matches_shared_data():
     assert verify_manifest(SHARED_DATA / "abc") == []
+
+
+def test_absent_data_is_its_own_exit_status_with_a_first_line_message(tmp_path, capsys):
+    from runner.regression import EXIT_NO_DATA, main
+
+    assert main(["--data-dir", str(tmp_path / "absent")]) == EXIT_NO_DATA != 0
+    assert capsys.readouterr().out.splitlines()[0].startswith(f"regression not run: {tmp_path / 'absent'} is absent")

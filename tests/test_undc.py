@@ -140,3 +140,16 @@ def test_tiny_budget_is_deterministic_and_lowers_both_losses(tiny_shapes, tmp_pa
     path.write_bytes(bytes(data))
     with pytest.raises(undc.WeightsError, match="damaged"):
         undc.load_weights(path)
+
+
+def test_a_weights_file_that_would_run_code_is_refused_unread(tmp_path):
+    from tests.test_weights import crafted_weights
+
+    from benchmark.storage import write_checked
+
+    path = tmp_path / "undc.pt"
+    write_checked(path, crafted_weights(tmp_path / "ran"))  # whoever writes the file writes its checksum
+    with pytest.raises(undc.WeightsError) as info:
+        undc.load_weights(path)
+    assert "refused unread" in str(info.value) and str(path) in str(info.value) and "\n" not in str(info.value)
+    assert not (tmp_path / "ran").exists()

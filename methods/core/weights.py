@@ -3,7 +3,10 @@ fits or trains (``{'state_dict', 'config', 'budget', 'method', 'final_loss'}`` t
 ``torch.save``), and the one error of a weights file that cannot be used.
 
 ``config`` is the keyword arguments that rebuild the network (``model.config``); the run layer
-stores the bytes checksummed (:mod:`benchmark.storage`).
+stores the bytes checksummed (:mod:`benchmark.storage`). Everything but the tensors is plain data
+(dicts, lists, tuples, numbers, strings), and bytes are read back with ``torch.load(...,
+weights_only=True)``: a file that would run code when unpickled (an object with ``__reduce__``) is
+refused unread, whoever wrote its checksum.
 """
 
 from __future__ import annotations
@@ -19,6 +22,17 @@ from methods.core.device import get_device
 class WeightsError(RuntimeError):
     """A weights file is absent, is not the network it should be, or cannot be read; the message
     is one line naming the file."""
+
+
+def load_plain(data: bytes, what: str = "weights", device=None):
+    """``torch.load(data, weights_only=True)`` on ``device`` (tensors and plain data only); any other
+    content (an object that would run code when unpickled, foreign or truncated bytes) raises
+    :class:`WeightsError` in one line naming ``what``, unread."""
+    try:
+        return torch.load(io.BytesIO(data), map_location=device, weights_only=True)
+    except Exception as exc:  # torch raises UnpicklingError, RuntimeError, EOFError, ... on foreign bytes
+        first = (str(exc).strip().splitlines() or [""])[0][:200]
+        raise WeightsError(f"{what} refused unread: not a plain weights file ({type(exc).__name__}: {first})") from None
 
 
 def weights_to_bytes(model, budget: dict, method_name: str, final_loss: float) -> bytes:
@@ -44,10 +58,13 @@ def refused_weights_from_bytes(data: bytes, build: Callable[..., torch.nn.Module
 def weights_from_bytes(data: bytes, build: Callable[..., torch.nn.Module], device=None,
                        method_name: str | None = None, what: str = "weights") -> tuple[torch.nn.Module, dict]:
     """(``build(**config)`` with the stored weights, in eval mode on ``device``; the stored dict) from
-    :func:`weights_to_bytes`' bytes. ``method_name``, when given, must match the stored one (a clear
-    ValueError otherwise, naming ``what``)."""
+    :func:`weights_to_bytes`' bytes. Bytes that are not a plain weights record (or would run code
+    when unpickled) raise :class:`WeightsError` in one line, unread; ``method_name``, when given,
+    must match the stored one (a clear ValueError otherwise, naming ``what``)."""
     device = get_device(device)
-    blob = torch.load(io.BytesIO(data), map_location=device, weights_only=False)
+    blob = load_plain(data, what, device)
+    if not isinstance(blob, dict) or not {"state_dict", "config"} <= set(blob):
+        raise WeightsError(f"{what} refused: not a weights record (no state_dict and config)")
     if method_name is not None and blob.get("method") != method_name:
         raise ValueError(f"{what} of method '{blob.get('method')}', expected '{method_name}'")
     model = build(**blob["config"]).to(device)

@@ -23,12 +23,28 @@ from skimage.measure import marching_cubes as _skimage_marching_cubes
 from benchmark.grid import index_to_world
 from methods.base import Extraction
 
-__all__ = ["marching_cubes_grid", "empty_mesh"]
+__all__ = ["marching_cubes_grid", "skimage_marching_cubes", "empty_mesh", "far_occupancy"]
 
 
 def empty_mesh() -> tuple[np.ndarray, np.ndarray]:
     """A mesh with no vertices and no faces: ((0, 3) float64, (0, 3) int64)."""
     return np.zeros((0, 3), dtype=np.float64), np.zeros((0, 3), dtype=np.int64)
+
+
+#: scikit-image's message when a volume has no triangle at the level: the one "no surface" case.
+NO_SURFACE = "No surface found"
+
+
+def skimage_marching_cubes(volume: np.ndarray, **options):
+    """scikit-image's ``marching_cubes(volume, **options)``, or None when it finds no triangle at
+    the level (its "No surface found"); every other error propagates, so a bug never reads as an
+    empty mesh."""
+    try:
+        return _skimage_marching_cubes(volume, **options)
+    except RuntimeError as exc:
+        if NO_SURFACE not in str(exc):
+            raise
+        return None
 
 
 def marching_cubes_grid(volume: np.ndarray, level: float = 0.0, inside: str = "low") -> Extraction:
@@ -65,11 +81,10 @@ def marching_cubes_grid(volume: np.ndarray, level: float = 0.0, inside: str = "l
     vmin, vmax = float(volume.min()), float(volume.max())
     if not (vmin <= level <= vmax) or vmin == vmax:
         return Extraction(*empty_mesh())
-    try:
-        verts, faces, _, _ = _skimage_marching_cubes(volume, level=level)
-    except (ValueError, RuntimeError):
-        # e.g. a level equal to the minimum or maximum that produces no triangle
+    found = skimage_marching_cubes(volume, level=level)
+    if found is None:  # e.g. a level equal to the minimum or maximum that produces no triangle
         return Extraction(*empty_mesh())
+    verts, faces, _, _ = found
     verts = index_to_world(verts, volume.shape[0])
     faces = np.ascontiguousarray(faces, dtype=np.int64)
     if inside == "high":

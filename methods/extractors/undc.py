@@ -43,7 +43,7 @@ from benchmark.raster import grid_line_hits
 from benchmark.storage import CorruptEntry, read_checked, write_checked
 from benchmark.timing import stage
 from methods.base import Extraction
-from methods.core.weights import WeightsError
+from methods.core.weights import WeightsError, load_plain
 from methods.extractors.ndc import KERNEL_OFFSETS, leaky, pointwise_conv, receptive_positions, sparse_conv3
 
 #: Grid points of padding each side: the receptive field of the three unpadded 3x3x3 convolutions.
@@ -528,7 +528,7 @@ def load_weights(path: str | Path | None = None) -> tuple[UNDCNetwork, UNDCNetwo
     if payload is None:
         raise WeightsError(f"UNDC weights not found at {path} (train them: {_training_command(path)}, "
                            f"or set {WEIGHTS_ENV})")
-    blob = torch.load(io.BytesIO(payload), map_location="cpu", weights_only=True)
+    blob = load_plain(payload, f"UNDC weights {path}", "cpu")
     info = {**blob["info"], "sha256": hashlib.sha256(payload).hexdigest()}
     networks = []
     for kind in ("bool", "float"):

@@ -33,12 +33,11 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
-from skimage.measure import marching_cubes as _skimage_marching_cubes
 
 from benchmark.grid import LOWER, ijk_axis_to_edge_index, spacing
 from methods.base import Extraction
 from methods.extractors.mesh_ops import drop_unreferenced_vertices
-from methods.extractors.marching_cubes import empty_mesh
+from methods.extractors.marching_cubes import empty_mesh, skimage_marching_cubes
 
 __all__ = ["CORNERS", "CORNER_PAIRS", "CUBE_EDGES", "CUBE_EDGE_AXES", "PARTITIONS", "UDF_FLOOR", "corner_signs",
            "local_marching_cubes", "flag_split_marching_cubes"]
@@ -122,10 +121,10 @@ def local_marching_cubes(cubes: np.ndarray, corner_values: np.ndarray, N: int) -
     # scikit-image meshes the cell whose upper corner holds a True mask value
     mask = np.zeros(volume.shape, dtype=bool)
     mask[2 * block[:, 0] + 1, 2 * block[:, 1] + 1, 2 * block[:, 2] + 1] = True
-    try:
-        position, faces, _, _ = _skimage_marching_cubes(volume, level=0.0, mask=mask, allow_degenerate=False)
-    except (ValueError, RuntimeError):  # no triangle at all
+    found = skimage_marching_cubes(volume, level=0.0, mask=mask, allow_degenerate=False)
+    if found is None:  # no triangle at all
         return empty_mesh()
+    position, faces, _, _ = found
     position = position.astype(np.float64)
     owner_block = np.clip(np.floor(position / 2.0).astype(np.int64), 0, side - 1)
     owner = np.ravel_multi_index(owner_block.T, (side,) * 3)
