@@ -3,6 +3,8 @@ are recomputed and counted, never used."""
 
 from __future__ import annotations
 
+import pathlib
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -98,3 +100,46 @@ def test_a_weights_entry_that_would_run_code_is_refused_unread_and_refitted(tmp_
     assert caches.load_weights(method, "k", "cpu") is None  # the job fits afresh and overwrites the entry
     assert not (tmp_path / "ran").exists() and stats.hits == []
     assert len(stats.rejected) == 1 and "refused unread" in stats.rejected[0] and "\n" not in stats.rejected[0]
+
+
+def _neural_run(out, cache, *extra: str) -> list[str]:
+    return ["--methods", "test_sdf", "test_occ", "--mode", "neural", "--budget", "tiny", "--grid", "24",
+            "--eval-points", "5000", "--limit", "2", "--out", str(out), "--cache-dir", str(cache), "--plugin", PLUGIN,
+            "--quiet", "--threads", "1", "--executor", "local", *extra]
+
+
+METRICS = ["shape", "method", "cd", "nc", "f1_005", "f1_01", "ecd", "ef1", "n_vertices", "n_faces"]
+
+
+def check_cache_entries(cache) -> int:
+    """Every entry under ``cache`` reads back whole (its checksum holds) and no temporary file is
+    left; returns the number of entries."""
+    from benchmark.storage import read_checked
+
+    entries = [p for kind in ("fields", "weights", "meshes") for p in (cache / kind).rglob("*") if p.is_file()]
+    assert not [p for p in cache.rglob("*.tmp")]
+    for path in entries:
+        assert read_checked(path) is not None
+    return len(entries)
+
+
+@pytest.mark.slow
+def test_two_runs_sharing_one_cache_fit_each_network_once_and_equal_a_serial_run(tmp_path):
+    """Two processes start the same neural jobs at once on one cache folder: every entry stays whole,
+    each (shape, method) network is fitted once between them (the other job waits on the entry's lock
+    and loads it, or finds the mesh), and both tables equal a serial run's on a fresh cache bit for bit."""
+    import subprocess
+    import sys
+
+    shared = tmp_path / "shared-cache"
+    procs = [subprocess.Popen([sys.executable, "run_benchmark.py", *_neural_run(tmp_path / name, shared)], cwd=pathlib.Path(__file__).resolve().parents[1],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True) for name in ("a", "b")]
+    assert [p.wait(timeout=600) for p in procs] == [0, 0], [p.stderr.read() for p in procs]
+    assert main(_neural_run(tmp_path / "serial", tmp_path / "fresh-cache")) == 0
+    a, b, serial = (pd.read_csv(tmp_path / n / "results.csv").sort_values(["shape", "method"]).reset_index(drop=True)
+                    for n in ("a", "b", "serial"))
+    for run in (a, b):
+        pd.testing.assert_frame_equal(run[METRICS], serial[METRICS])
+    fits = (a.set_index(["shape", "method"])["fitted"] + b.set_index(["shape", "method"])["fitted"])
+    assert (fits == 1).all(), fits  # never fitted twice, never lost
+    assert check_cache_entries(shared) == check_cache_entries(tmp_path / "fresh-cache")

@@ -314,3 +314,24 @@ def _running(pid: int) -> bool:
         return "\nState:\tZ" not in status.read_text()
     except (FileNotFoundError, ProcessLookupError):
         return False
+
+
+@pytest.mark.slow
+def test_two_ray_workers_sharing_one_fit_fit_it_once_and_give_the_local_table(ray_instance, tmp_path):
+    """A sweep over an extraction setting gives two jobs per shape that need the same fit; on two Ray
+    workers one fits while the other waits on the weights entry's lock and loads it: one fit per
+    shape, and the table of a local run on a fresh cache."""
+    from tests.fake_methods import PLUGIN
+
+    def run(out, cache, *executor):
+        assert main(["--methods", "test_sdf", "--mode", "neural", "--budget", "tiny", "--grid", "24",
+                     "--eval-points", "5000", "--limit", "2", "--sweep", "test_sdf.level=0,0.01", "--no-ceiling",
+                     "--out", str(out), "--cache-dir", str(cache), "--plugin", PLUGIN, "--quiet", "--threads", "1",
+                     *executor]) == 0
+        return pd.read_csv(out / "results.csv").sort_values(["shape", "sweep.test_sdf.level"]).reset_index(drop=True)
+
+    ray_table = run(tmp_path / "ray", tmp_path / "ray-cache", "--executor", "ray", "--workers", "2")
+    local = run(tmp_path / "local", tmp_path / "local-cache", "--executor", "local")
+    metrics = ["shape", "sweep.test_sdf.level", "cd", "nc", "f1_005", "ecd", "ef1", "n_vertices", "n_faces"]
+    pd.testing.assert_frame_equal(ray_table[metrics], local[metrics])
+    assert (ray_table.groupby("shape")["fitted"].sum() == 1).all()
