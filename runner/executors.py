@@ -37,6 +37,7 @@ CPU is deterministic for a given torch thread count, and the thread count differ
 from __future__ import annotations
 
 import os
+import signal
 import queue as _queue
 import sys
 from collections import deque
@@ -184,6 +185,21 @@ def _process_call(fn: Callable, spec, index: int):
     return fn(spec, progress)
 
 
+def worker_death(pool) -> str:
+    """How the dead worker of a broken process pool ended, in words: killed by a signal (SIGKILL is
+    what the kernel's out-of-memory killer sends) or an exit status. The pool's own termination of
+    its other workers (SIGTERM) is not the cause and is left out."""
+    codes = [p.exitcode for p in pool._processes.values() if p.exitcode not in (None, 0, -signal.SIGTERM)]
+    if not codes:
+        return "cause unknown"
+    code = codes[0]
+    if code == -signal.SIGKILL:
+        return "killed by SIGKILL: out of memory (the kernel's OOM killer) or killed by hand"
+    if code < 0:
+        return f"killed by {signal.Signals(-code).name}"
+    return f"exit status {code}"
+
+
 class ProcessExecutor:
     """Runs tasks in ``workers`` spawned processes (see module docstring)."""
 
@@ -266,6 +282,7 @@ class ProcessExecutor:
                 except Exception as exc:  # noqa: BLE001
                     outcome = exc
                 yield specs[i], outcome
+            death = worker_death(self._pool)
             self._pool.shutdown(wait=False, cancel_futures=True)
             self._pool = None
             for i in broken:
@@ -275,7 +292,8 @@ class ProcessExecutor:
                 elif attempts[i] <= self.retries:
                     suspects.append(i)
                 else:
-                    yield specs[i], WorkerLost(f"worker process died {attempts[i]} time(s) while running {specs[i].label}")
+                    yield specs[i], WorkerLost(f"worker process died {attempts[i]} time(s) while running "
+                                               f"{specs[i].label} ({death})")
 
     def close(self) -> None:
         if self._pool is not None:

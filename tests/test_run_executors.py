@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -144,8 +145,25 @@ def test_process_executor_dead_worker_is_retried_then_reported():
     finally:
         ex.close()
     assert set(got) == {0, 1, 2, 3}                            # nothing lost silently
-    assert isinstance(got[1], WorkerLost) and "died 2 time(s)" in str(got[1])
+    assert isinstance(got[1], WorkerLost) and "died 2 time(s)" in str(got[1]) and "(exit status 17)" in str(got[1])
     assert got[0] == 0 and got[2] == 4 and got[3] == 9          # the others finish (retried if caught in the crash)
+
+
+def _killed(spec: _Spec, progress=None):
+    if spec.die:
+        os.kill(os.getpid(), signal.SIGKILL)  # what the kernel's out-of-memory killer does
+    return spec.i
+
+
+def test_a_worker_killed_like_the_oom_killer_does_is_a_failed_job_saying_so():
+    ex = ProcessExecutor(workers=2, retries=0)
+    try:
+        got = {s.i: r for s, r in ex.run(_killed, [_Spec(0), _Spec(1, die=True), _Spec(2)])}
+    finally:
+        ex.close()
+    assert got[0] == 0 and got[2] == 2
+    assert isinstance(got[1], WorkerLost) and "killed by SIGKILL: out of memory" in str(got[1])
+    assert "\n" not in str(got[1])
 
 
 # ---------------------------------------------------------------------------------------------
