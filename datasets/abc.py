@@ -233,7 +233,8 @@ class ABCNonManifoldDataset(ABCDataset):
                     pairs[f"{a}+{b}"] = (path_a, path_b)
             _report_missing(self, len(lines))
         if not pairs:
-            raise DatasetError(f"dataset '{self.name}': no complete pair of meshes in {self.data_dir}")
+            what = f" matching {self.list_file}" if self.list_file else ""
+            raise DatasetError(f"dataset '{self.name}': no complete pair of meshes{what} in {self.data_dir}")
         chosen = set(select_subset(list(pairs), self.limit, self.seed))
         self._pairs = {n: p for n, p in pairs.items() if n in chosen}
         self._paths = {n: p[0] for n, p in self._pairs.items()}

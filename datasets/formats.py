@@ -11,7 +11,8 @@ import re
 
 import numpy as np
 
-__all__ = ["MeshError", "decode_text", "stl_bytes", "check_ply_header", "parse_obj", "parse_off"]
+__all__ = ["MeshError", "decode_text", "stl_bytes", "ascii_stl_vertex_count", "check_ply_header", "ply_bytes",
+           "parse_obj", "parse_off"]
 
 
 class MeshError(ValueError):
@@ -48,18 +49,33 @@ def stl_bytes(data: bytes) -> bytes:
         raise MeshError(f"not an STL file: {as_binary}, and it does not start with 'solid' (ASCII STL)")
     if _is_binary(data):
         raise MeshError(f"not an STL file: starts with 'solid' but holds binary data, and its {as_binary}")
-    return decode_text(data, "ASCII STL").encode("utf-8")
+    text = decode_text(data, "ASCII STL")
+    last = text.rstrip().rsplit("\n", 1)[-1].strip()
+    if not last.lower().startswith("endsolid"):
+        raise MeshError(f"ASCII STL does not end with an 'endsolid' line (truncated?); its last line is {last[:40]!r}")
+    return text.encode("utf-8")
+
+
+def ascii_stl_vertex_count(text: bytes) -> int:
+    """How many ``vertex`` keywords an ASCII STL text holds: three per triangle that a reader must
+    return (trimesh's reader silently skips a facet whose numbers it cannot read)."""
+    return len(re.findall(rb"vertex", text.lower()))
 
 
 _PLY_FORMATS = ("ascii", "binary_little_endian", "binary_big_endian")
-_PLY_TYPES = {"char", "uchar", "short", "ushort", "int", "uint", "float", "double",
-              "int8", "uint8", "int16", "uint16", "int32", "uint32", "float32", "float64"}
+#: Bytes of each PLY scalar type in a binary file.
+_PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
+              "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
+_PLY_TYPES = set(_PLY_SIZES)
 
 
 def check_ply_header(data: bytes) -> None:
     """Raise a :class:`MeshError` naming what is wrong with the header of PLY file bytes: not a PLY
     file, no ``end_header``, a bad ``format``/``element``/``property`` line, no ``element vertex``,
-    or a vertex element without ``x``, ``y`` or ``z``."""
+    or a vertex element without ``x``, ``y`` or ``z``; or with the size of its data: an ASCII body
+    whose line count is not the header's element count, a binary body shorter than its elements
+    need (checked before any array is allocated, so a header claiming billions of elements costs
+    nothing)."""
     end = data.find(b"end_header")
     lines = data[: end if end >= 0 else 65536].decode("latin-1").splitlines()
     if not lines or lines[0].strip() != "ply":
@@ -67,6 +83,9 @@ def check_ply_header(data: bytes) -> None:
     if end < 0:
         raise MeshError("PLY header has no 'end_header' line")
     properties: dict[str, list[str]] = {}
+    counts: dict[str, int] = {}
+    min_bytes: dict[str, int] = {}  # per element: its scalars and list lengths (the lists may be empty)
+    lists: dict[str, list[bool]] = {}  # per element: which of its properties are lists
     formats = []
     for number, line in enumerate(lines[1:], start=2):
         words = line.split()
@@ -74,14 +93,20 @@ def check_ply_header(data: bytes) -> None:
         if keyword == "format":
             formats.append(words[1] if len(words) == 3 else "")
         elif keyword == "element":
-            if len(words) != 3 or not words[2].isdigit():
+            if len(words) != 3 or not (words[2].isascii() and words[2].isdigit()):
                 raise MeshError(f"PLY header line {number} is not 'element <name> <count>': {line.strip()!r}")
             element = properties.setdefault(words[1], [])
+            counts[words[1]] = counts.get(words[1], 0) + int(words[2])
+            min_bytes.setdefault(words[1], 0)
+            lists.setdefault(words[1], [])
+            name = words[1]
         elif keyword == "property":
             types = words[2:4] if words[1:2] == ["list"] and len(words) == 5 else words[1:2] if len(words) == 3 else []
             if not properties or not types or not set(types) <= _PLY_TYPES:
                 raise MeshError(f"PLY header line {number} is not a property of a declared element: {line.strip()!r}")
             element.append(words[-1])
+            min_bytes[name] += _PLY_SIZES[types[0]]
+            lists[name].append(len(types) == 2)
     if not formats:
         raise MeshError("PLY header has no 'format' line")
     if formats[0] not in _PLY_FORMATS:
@@ -91,6 +116,56 @@ def check_ply_header(data: bytes) -> None:
     for axis in ("x", "y", "z"):
         if axis not in properties["vertex"]:
             raise MeshError(f"PLY vertex element lacks property '{axis}'")
+    newline = data.find(b"\n", end)
+    body = data[newline + 1:] if newline >= 0 else b""
+    declared = ", ".join(f"{count:,} {name}" for name, count in counts.items())
+    if formats[0] == "ascii":  # one element per line
+        body = body.rstrip()
+        rows = 0 if not body else body.count(b"\n") + 1 if b"\n" in body else body.count(b"\r") + 1
+        if rows != sum(counts.values()):
+            raise MeshError(f"PLY data does not match its header (it declares {declared}: "
+                            f"{sum(counts.values()):,} lines of ASCII data; the file holds {rows:,})")
+        last = [name for name in counts if counts[name]][-1:]
+        line = body[max(body.rfind(b"\n"), body.rfind(b"\r")) + 1:]
+        if last and not _ply_line_fits(line.split(), lists[last[0]]):
+            raise MeshError(f"PLY data does not match its header (its last line does not hold one "
+                            f"'{last[0]}': {line[:40].decode('latin-1')!r}; truncated?)")
+    else:
+        need = sum(counts[name] * min_bytes[name] for name in counts)
+        if len(body) < need:
+            raise MeshError(f"PLY data does not match its header (it declares {declared}: at least {need:,} bytes "
+                            f"of binary data; the file holds {len(body):,})")
+
+
+def ply_bytes(data: bytes) -> bytes:
+    """What trimesh gets of a PLY file: the bytes checked by :func:`check_ply_header`, with a header
+    that is not UTF-8 (a comment in a legacy encoding) decoded as Latin-1 and re-encoded as UTF-8,
+    as the text mesh formats are read (trimesh would refuse it)."""
+    check_ply_header(data)
+    end = data.find(b"\n", data.find(b"end_header"))
+    header = data[: end + 1] if end >= 0 else data
+    try:
+        header.decode("utf-8")
+    except UnicodeDecodeError:
+        return header.decode("latin-1").encode("utf-8") + data[len(header):]
+    return data
+
+
+def _ply_line_fits(tokens: list[bytes], lists: list[bool]) -> bool:
+    """Whether one line of an ASCII PLY holds exactly the properties of its element: one number per
+    scalar, a length then that many numbers per list."""
+    at = 0
+    for is_list in lists:
+        if is_list:
+            try:
+                length = float(tokens[at])
+            except (IndexError, ValueError):
+                return False
+            if not (length >= 0 and length.is_integer()):  # NaN and inf are not integers
+                return False
+            at += int(length)
+        at += 1
+    return at == len(tokens)
 
 
 def _numbers_per_line(lines: list[str] | tuple[str, ...], dtype=np.float64) -> tuple[np.ndarray, np.ndarray]:

@@ -13,8 +13,10 @@ frame: a valid mesh at 1e-300 or 1e300 loads like the same mesh at 1.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import io
+import logging
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,7 +26,15 @@ import trimesh
 
 from benchmark.storage import mesh_hash
 from benchmark.surface import MIN_RELATIVE_AREA, relative_area
-from datasets.formats import MeshError, check_ply_header, decode_text, parse_obj, parse_off, stl_bytes
+from datasets.formats import (
+    MeshError,
+    ascii_stl_vertex_count,
+    decode_text,
+    parse_obj,
+    parse_off,
+    ply_bytes,
+    stl_bytes,
+)
 
 #: File extensions the loaders accept.
 MESH_EXTENSIONS = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
@@ -173,12 +183,16 @@ def read_mesh_file(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
       :func:`parse_off`): vertices exactly as listed, polygons fan-triangulated, nothing split or
       merged (trimesh's OBJ loader splits vertices per object/material group).
     * ``.stl``: binary when the size is 84 + 50 x the header's triangle count, else ASCII when it
-      starts with ``solid`` (decoded here: UTF-8, else Latin-1, so trimesh's optional encoding
-      detector never decides), else not an STL file. Parsed by trimesh.
-    * ``.ply``: the header is checked here (named problems instead of trimesh's bare KeyError),
-      then parsed by trimesh; ``.glb``/``.gltf`` by trimesh. All with ``process=False``. A scene
-      (glTF nodes, several PLY/STL solids) becomes one mesh: every triangle-mesh instance with its
-      node transform applied, concatenated (vertex seams as stored: no merging).
+      starts with ``solid`` and ends with ``endsolid`` (decoded here: UTF-8, else Latin-1, so
+      trimesh's optional encoding detector never decides), else not an STL file. Parsed by trimesh;
+      an ASCII file of which it reads fewer triangles than it has ``vertex`` lines / 3 is refused.
+    * ``.ply``: the header is checked here (named problems instead of trimesh's bare KeyError) and
+      so is the size of the data it declares (an ASCII line per element, a binary body long enough;
+      before any allocation), then parsed by trimesh (a header in Latin-1 re-encoded as UTF-8);
+      ``.glb``/``.gltf`` by trimesh. All with ``process=False``, trimesh's log and numpy's
+      floating-point warnings silenced (:func:`quiet_trimesh`). A scene (glTF nodes, several
+      PLY/STL solids) becomes one mesh: every triangle-mesh instance with its node transform
+      applied, concatenated (vertex seams as stored: no merging).
     * Only an unindexed file (STL stores three vertices per triangle) is welded, at exactly equal
       positions, which is what its indexed form would have been.
     """
@@ -199,16 +213,16 @@ def read_mesh_file(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
         if suffix in (".obj", ".off"):
             parse = parse_obj if suffix == ".obj" else parse_off
             return parse(decode_text(data, kind))
-        # STL: trimesh reads the bytes checked (and decoded) here; others: the path (glTF resources)
-        source = io.BytesIO(stl_bytes(data)) if suffix == ".stl" else str(path)
-        if suffix == ".ply":
-            check_ply_header(data)
+        # STL, PLY: trimesh reads the bytes checked (and decoded) here; glTF: the path (its resources)
+        stl = stl_bytes(data) if suffix == ".stl" else None
+        source = io.BytesIO(stl if stl is not None else ply_bytes(data)) if suffix in (".stl", ".ply") else str(path)
     except MeshError as exc:
         raise MeshError(f"{what}: {exc}") from None
     except (ValueError, IndexError, OverflowError) as exc:
         raise MeshError(f"{what}: unreadable {kind} ({_one_line(exc)})") from None
     try:
-        loaded = trimesh.load(source, file_type=suffix[1:], process=False, maintain_order=True)
+        with quiet_trimesh():
+            loaded = trimesh.load(source, file_type=suffix[1:], process=False, maintain_order=True)
     except Exception as exc:  # trimesh raises many exception types on corrupt files
         problem = "PLY data does not match its header" if suffix == ".ply" else f"unreadable {kind}"
         raise MeshError(f"{what}: {problem} ({_one_line(exc)})") from None
@@ -217,16 +231,35 @@ def read_mesh_file(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
         if loaded.geometry and not meshes:
             kinds = sorted({type(g).__name__ for g in loaded.geometry.values()})
             raise MeshError(f"{what}: contains no triangle mesh (only {', '.join(kinds)})")
-        loaded = loaded.to_mesh() if meshes else trimesh.Trimesh()
+        with quiet_trimesh():
+            loaded = loaded.to_mesh() if meshes else trimesh.Trimesh()
     if isinstance(loaded, trimesh.PointCloud):
         return np.asarray(loaded.vertices, dtype=np.float64).reshape(-1, 3), np.zeros((0, 3), dtype=np.int64)
     if not isinstance(loaded, trimesh.Trimesh):
         raise MeshError(f"{what}: contains no triangle mesh (got {type(loaded).__name__})")
     vertices = np.asarray(loaded.vertices, dtype=np.float64).reshape(-1, 3)
     faces = np.asarray(loaded.faces, dtype=np.int64).reshape(-1, 3)
+    if stl is not None and stl is not data and ascii_stl_vertex_count(stl) != 3 * len(faces):
+        raise MeshError(f"{what}: unreadable ASCII STL ({ascii_stl_vertex_count(stl):,} 'vertex' lines, but only "
+                        f"{len(faces):,} whole triangles could be read: a malformed number or facet?)")
     if suffix == ".stl" and len(faces) and len(vertices) == 3 * len(faces):
         vertices, faces = weld_exact(vertices, faces)
     return vertices, faces
+
+
+@contextlib.contextmanager
+def quiet_trimesh():
+    """Silence trimesh while it parses a file: its log (tracebacks of what it skips: a facet normal
+    it cannot read, ...) and numpy's floating-point warnings (its normals of NaN/inf vertices). What
+    is wrong with the file is said by our one-line error (:func:`validate_arrays` refuses NaN/inf)."""
+    logger = logging.getLogger("trimesh")
+    level = logger.level
+    logger.setLevel(logging.CRITICAL + 1)
+    try:
+        with np.errstate(all="ignore"):
+            yield
+    finally:
+        logger.setLevel(level)
 
 
 def _one_line(exc: BaseException) -> str:

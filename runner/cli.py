@@ -99,6 +99,8 @@ def build_parser() -> argparse.ArgumentParser:
     setting("cpus_per_job", metavar="C")
     setting("threads", metavar="T")
     setting("retries", metavar="R")
+    setting("max_faces", metavar="N")
+    setting("max_points", metavar="N")
     setting("checkpoints", type=_comma_list, metavar="F1,F2,...")
     setting("decompose", action="store_const", const=True)
     setting("method_params", action="append", metavar="METHOD.NAME=VALUE")

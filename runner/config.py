@@ -163,6 +163,12 @@ class RunConfig:
         "execution", None, "torch CPU threads per job (default: 1 for auto's process workers, torch's own (all "
         "cores) for local and for auto with one task; cores // workers for process; --cpus-per-job for ray)",
         kind=int, ge=1)
+    max_faces: int = _setting(
+        "execution", 5_000_000, "a shape whose mesh has more faces fails its jobs with one line naming the file "
+        "and its size, before any work (a job's memory grows with the faces; default 5,000,000)", ge=1)
+    max_points: int = _setting(
+        "execution", 10_000_000, "a point cloud with more points (a file of the pointclouds dataset, or "
+        "--pc-points) is refused likewise (default 10,000,000)", ge=1)
     retries: int = _setting(
         "execution", 1, "times a job whose worker died is retried (default 1); jobs that raise are recorded "
         "failed at once", ge=0)
@@ -202,7 +208,9 @@ class RunConfig:
         memory = machine_memory_bytes()
         if memory is not None and grid_memory_bytes(self.grid) > memory:
             largest = int((memory / GRID_BYTES_PER_POINT) ** (1 / 3))
-            raise ConfigError(f"--grid {self.grid} needs ~{grid_memory_bytes(self.grid) / 2**30:.0f} GiB of grid "
+            gib = grid_memory_bytes(self.grid) // 2**30  # an int: a grid of any size is one line, never an overflow
+            shown = f"{gib:,}" if gib < 2**64 else f"2^{gib.bit_length() - 1}"
+            raise ConfigError(f"--grid {self.grid} needs ~{shown} GiB of grid "
                               f"buffers per job, more than this machine's {memory / 2**30:.0f} GiB; "
                               f"use --grid <= {largest}")
         if not self.seeds:
@@ -215,6 +223,9 @@ class RunConfig:
                 raise ConfigError("--checkpoints needs --mode neural (oracle mode fits nothing)")
             if any(b <= a for a, b in zip(c, c[1:])):
                 raise ConfigError(f"--checkpoints must be increasing fractions of the budget in (0, 1], got {list(c)}")
+        if self.pc_points > self.max_points:
+            raise ConfigError(f"--pc-points {self.pc_points} is over the limit of {self.max_points} points a job "
+                              f"may hold (--max-points)")
         if self.task == "encode" and (self.pc_points != DEFAULT_PC_POINTS or self.pc_noise != 0):
             raise ConfigError("--pc-points and --pc-noise apply to --task reconstruct")
         if self.task == "reconstruct" and (self.mode != "neural" or self.checkpoints):
@@ -274,7 +285,8 @@ class RunConfig:
         known = cls.field_names()
         unknown = sorted(set(values) - set(known))
         if unknown:
-            raise ConfigError(f"{where}: unknown setting(s) {', '.join(unknown)}; known: {', '.join(known)}")
+            shown = ", ".join(n if n.isprintable() else repr(n) for n in unknown)  # a line break stays escaped
+            raise ConfigError(f"{where}: unknown setting(s) {shown}; known: {', '.join(known)}")
         if values.get("mode") == "oracle" and values.get("budget") is not None:
             raise ConfigError(f"{where}: budget needs mode neural (oracle mode fits nothing)")
         return cls(**dict(values))
@@ -284,20 +296,30 @@ class RunConfig:
         """A config from a file: a run's ``config.json`` (its ``config`` entry), or a JSON/TOML file
         of settings (top-level keys = field names; TOML may also put them in a ``[run]`` table)."""
         path = Path(path)
+        kind = "TOML" if path.suffix.lower() == ".toml" else "JSON"
         try:
             text = path.read_text(encoding="utf-8")
         except OSError as exc:
             raise ConfigError(f"--config {path}: cannot read ({exc.strerror or exc})") from None
+        except UnicodeDecodeError as exc:
+            raise ConfigError(f"--config {path}: not valid {kind} (not UTF-8 text: byte {exc.object[exc.start]:#04x} "
+                              f"at offset {exc.start})") from None
         try:
-            data = tomllib.loads(text) if path.suffix.lower() == ".toml" else json.loads(text)
-        except (json.JSONDecodeError, tomllib.TOMLDecodeError) as exc:
-            raise ConfigError(f"--config {path}: not valid {path.suffix.lstrip('.').upper() or 'JSON'} ({exc})") from None
+            data = tomllib.loads(text) if kind == "TOML" else json.loads(text)
+        except RecursionError:
+            raise ConfigError(f"--config {path}: not valid {kind} (nested too deeply)") from None
+        except ValueError as exc:  # the decode errors, and integers of more digits than Python converts
+            reason = " ".join(str(exc).split())[:200]
+            raise ConfigError(f"--config {path}: not valid {kind} ({reason})") from None
         if not isinstance(data, dict):
             raise ConfigError(f"--config {path}: expected a table of settings")
         if "config" not in data and "environment" in data and "options" in data:
             raise ConfigError(f"{path}: written by an older salsbench (before typed run configurations); "
                               f"start a new --out")
-        data = data.get("config", data.get("run", data))
+        key = "config" if "config" in data else "run" if "run" in data else None
+        data = data[key] if key else data
+        if not isinstance(data, dict):
+            raise ConfigError(f"--config {path}: expected a table of settings under '{key}', got {type(data).__name__}")
         return cls.from_mapping(data, where=f"--config {path}")
 
 

@@ -189,7 +189,10 @@ def worker_death(pool) -> str:
     """How the dead worker of a broken process pool ended, in words: killed by a signal (SIGKILL is
     what the kernel's out-of-memory killer sends) or an exit status. The pool's own termination of
     its other workers (SIGTERM) is not the cause and is left out."""
-    codes = [p.exitcode for p in pool._processes.values() if p.exitcode not in (None, 0, -signal.SIGTERM)]
+    processes = list(pool._processes.values())
+    for process in processes:  # a broken pool ends all its workers; wait (bounded) until each is reaped
+        process.join(timeout=5)
+    codes = [p.exitcode for p in processes if p.exitcode not in (None, 0, -signal.SIGTERM)]
     if not codes:
         return "cause unknown"
     code = codes[0]

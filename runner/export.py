@@ -92,13 +92,10 @@ def export(run_dir: str | Path, db=None, record: dict[str, Any] | None = None,
 
     A failure while writing the reports is reported on stderr and never loses results.csv.
     """
-    import reports
-    from runner.job import one_line
     from runner.rundir import RunDirectory
 
     run_dir = Path(run_dir)
     out_dir = Path(out_dir) if out_dir is not None else run_dir
-    out_dir.mkdir(parents=True, exist_ok=True)
     record = record if record is not None else RunDirectory(run_dir).read_record()
     own = db is None
     db = open_run_db(run_dir, must_exist=True) if own else db
@@ -109,6 +106,10 @@ def export(run_dir: str | Path, db=None, record: dict[str, Any] | None = None,
     finally:
         if own:
             db.close()
+    out_dir.mkdir(parents=True, exist_ok=True)  # after reading: a database that cannot be read writes nothing
+    import reports
+    from runner.job import one_line
+
     results.to_csv(out_dir / "results.csv", index=False, float_format="%.9g")
     floor.to_csv(out_dir / "floor.csv", index=False, float_format="%.9g")
     written: dict[str, Any] = {"results": out_dir / "results.csv", "floor": out_dir / "floor.csv"}

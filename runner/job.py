@@ -148,6 +148,7 @@ def _run(spec, progress: Callable | None, body: Callable) -> TaskResult:
             result.device = describe_device(device)
             with stage("load"):
                 shape = load_dataset(spec.dataset, spec.dataset_options).load(spec.shape)
+                check_size(shape, spec.max_faces, spec.max_points)
             result.shape_hash, result.shape_kind = shape.content_hash, shape.kind
             body(spec, shape, device, timer, result, report)
             result.status = "ok"
@@ -159,6 +160,20 @@ def _run(spec, progress: Callable | None, body: Callable) -> TaskResult:
     result.timings = dict(timer.seconds)
     result.finished = now_iso()
     return result
+
+
+class ShapeTooLarge(ValueError):
+    """A shape over the run's size limits (``--max-faces``, ``--max-points``); one line naming its file."""
+
+
+def check_size(shape, max_faces: int | None, max_points: int | None) -> None:
+    """Raise :class:`ShapeTooLarge` when ``shape`` has more faces than ``max_faces`` or more input
+    points than ``max_points`` (None: no limit)."""
+    where = shape.source or shape.name
+    if max_faces is not None and len(shape.faces) > max_faces:
+        raise ShapeTooLarge(f"{where}: {len(shape.faces):,} faces, over the limit of {max_faces:,} (--max-faces)")
+    if max_points is not None and shape.points is not None and len(shape.points) > max_points:
+        raise ShapeTooLarge(f"{where}: {len(shape.points):,} points, over the limit of {max_points:,} (--max-points)")
 
 
 def _score(score: Callable, spec, shape, pred_V, pred_F, result: TaskResult, report: _Progress) -> None:

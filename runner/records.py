@@ -80,7 +80,9 @@ def scalar(value: Any) -> tuple[bool, Any]:
 
 
 class SchemaMismatch(ValueError):
-    """A results database written by another schema version (one line)."""
+    """A results database this version cannot use, in one line naming the file: written by another
+    schema version, not a salsbench results database (no schema version, a table or key column
+    missing), or damaged (not a readable SQLite file)."""
 
 
 class ResultsDB:
@@ -89,28 +91,86 @@ class ResultsDB:
     >>> db = ResultsDB(run_dir / "results.db")      # doctest: +SKIP
     >>> db.write_job(row)                             # commits at once
     >>> db.ok_hashes()                                # jobs that need not run again
+
+    An existing file is checked before anything is written to it (:meth:`_check`): one that this
+    version cannot use raises :class:`SchemaMismatch` and is left as it was. ``create=False`` (a
+    reader: the reports) opens an existing database only, and writes nothing to it.
     """
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, create: bool = True):
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.conn = sqlite3.connect(str(self.path), timeout=60.0, isolation_level=None)
-        self.conn.execute("PRAGMA journal_mode=WAL")
-        self.conn.execute("PRAGMA synchronous=NORMAL")
-        self._create()
+        self.conn = None
+        if self.path.is_file() and self.path.stat().st_size:  # SQLite would take a byte or two for a new database
+            with open(self.path, "rb") as f:
+                if f.read(16) != b"SQLite format 3\x00":
+                    raise SchemaMismatch(f"{self.path}: not a results database (not an SQLite file)")
+        try:
+            if create:
+                self.path.parent.mkdir(parents=True, exist_ok=True)
+                self.conn = sqlite3.connect(str(self.path), timeout=60.0, isolation_level=None)
+            else:  # mode=rw: never creates the file
+                self.conn = sqlite3.connect(f"{self.path.resolve().as_uri()}?mode=rw", timeout=60.0,
+                                            isolation_level=None, uri=True)
+            tables = self._tables()
+            if tables or not create:
+                self._check(tables)
+            if create:
+                self.conn.execute("PRAGMA journal_mode=WAL")
+                self.conn.execute("PRAGMA synchronous=NORMAL")
+                self._create()
+        except sqlite3.DatabaseError as exc:  # not an SQLite file, or a damaged one
+            self.close()
+            raise SchemaMismatch(f"{self.path}: not a readable results database ({_one_line(exc)})") from None
+        except SchemaMismatch:
+            self.close()
+            raise
 
     # -- schema -----------------------------------------------------------------------------
-    def _create(self) -> None:
-        for table in TABLES:
-            cols = ", ".join(f'"{k}" {t}' for k, t in sql_columns(table).items())
-            self.conn.execute(f'CREATE TABLE IF NOT EXISTS "{table}" ({cols})')
-        self.conn.execute("CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT)")
+    def _tables(self) -> set[str]:
+        return {r[0] for r in self.conn.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+
+    def _check(self, tables: set[str]) -> None:
+        """Refuse, with :class:`SchemaMismatch`, a file this version cannot use: a damaged one, one of
+        another schema version, one without the tables and key columns every results database has
+        had since this version (tables added since, as ``components``, may be absent)."""
+        problems = [r[0] for r in self.conn.execute("PRAGMA quick_check")]
+        if problems != ["ok"]:
+            raise SchemaMismatch(f"{self.path}: damaged results database ({' '.join(str(problems[0]).split())[:200]})")
+        if "meta" not in tables:
+            raise SchemaMismatch(f"{self.path}: not a salsbench results database (no table 'meta' with its schema "
+                                 f"version)")
         stored = self.get_meta("schema_version")
         if stored is None:
-            self.set_meta("schema_version", str(SCHEMA_VERSION))
-        elif int(stored) != SCHEMA_VERSION:
+            raise SchemaMismatch(f"{self.path}: not a salsbench results database (no schema version in table 'meta')")
+        if stored != str(SCHEMA_VERSION):
+            stored = stored if str(stored).isprintable() else repr(stored)  # a line break stays escaped
             raise SchemaMismatch(f"{self.path}: results database schema {stored}, this version reads {SCHEMA_VERSION}; "
                                  f"start a new --out (or use the salsbench version that wrote it)")
+        for table, columns in TABLES.items():
+            if table not in tables:
+                if table in ("jobs", "floor"):
+                    raise SchemaMismatch(f"{self.path}: not a salsbench results database (no table '{table}')")
+                continue
+            have = set(self.columns(table))
+            missing = [c.name for c in columns if c.role in ("key", "status") and c.name not in have]
+            if missing:
+                raise SchemaMismatch(f"{self.path}: table '{table}' has no column {', '.join(missing)} (not a "
+                                     f"salsbench results database of this version)")
+
+    def _create(self) -> None:
+        """The tables and the schema version, in one transaction (a kill leaves all or nothing)."""
+        self.conn.execute("BEGIN IMMEDIATE")
+        try:
+            for table in TABLES:
+                cols = ", ".join(f'"{k}" {t}' for k, t in sql_columns(table).items())
+                self.conn.execute(f'CREATE TABLE IF NOT EXISTS "{table}" ({cols})')
+            self.conn.execute("CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT)")
+            if self.get_meta("schema_version") is None:
+                self.set_meta("schema_version", str(SCHEMA_VERSION))
+            self.conn.execute("COMMIT")
+        except BaseException:
+            self.conn.execute("ROLLBACK")
+            raise
 
     def columns(self, table: str) -> list[str]:
         return [r[1] for r in self.conn.execute(f'PRAGMA table_info("{table}")')]
@@ -231,16 +291,25 @@ class ResultsDB:
         return {h: int(a or 0) for h, a in self.conn.execute("SELECT config_hash, attempts FROM jobs")}
 
     def frame(self, table: str = "jobs") -> pd.DataFrame:
-        """The table as a DataFrame (NULL -> NaN/None), in insertion order."""
-        df = pd.read_sql_query(f'SELECT * FROM "{table}" ORDER BY rowid', self.conn)
-        for _, name, sql_type, *_ in self.conn.execute(f'PRAGMA table_info("{table}")'):
-            if sql_type.upper() == "REAL" and name in df.columns:  # all-NULL columns come back as None
-                df[name] = pd.to_numeric(df[name], errors="coerce").astype(float)
+        """The table as a DataFrame (NULL -> NaN/None), in insertion order; a table the database
+        does not have yet (added by a later version, :meth:`_check`) is an empty frame of its
+        declared columns."""
+        try:
+            if table not in self._tables():
+                return pd.DataFrame({name: pd.Series(dtype=float if sql == "REAL" else object)
+                                     for name, sql in sql_columns(table).items()})
+            df = pd.read_sql_query(f'SELECT * FROM "{table}" ORDER BY rowid', self.conn)
+            for _, name, sql_type, *_ in self.conn.execute(f'PRAGMA table_info("{table}")'):
+                if sql_type.upper() == "REAL" and name in df.columns:  # all-NULL columns come back as None
+                    df[name] = pd.to_numeric(df[name], errors="coerce").astype(float)
+        except (sqlite3.DatabaseError, pd.errors.DatabaseError) as exc:
+            raise SchemaMismatch(f"{self.path}: damaged results database ({_one_line(exc)})") from None
         return df
 
     def close(self) -> None:
         try:
-            self.conn.close()
+            if self.conn is not None:
+                self.conn.close()
         except sqlite3.Error:
             pass
 
@@ -252,9 +321,14 @@ class ResultsDB:
 
 
 def open_run_db(run_dir: str | Path, must_exist: bool = False) -> ResultsDB:
-    """The database of a run directory; ``must_exist`` raises FileNotFoundError (one line) if absent."""
+    """The database of a run directory; ``must_exist`` (a reader) raises FileNotFoundError (one line)
+    if absent, and opens it without writing (``ResultsDB(..., create=False)``)."""
     path = Path(run_dir) / DB_NAME
     if must_exist and not path.is_file():
         raise FileNotFoundError(f"{run_dir}: no {DB_NAME} (not a salsbench run directory?)")
-    return ResultsDB(path)
+    return ResultsDB(path, create=not must_exist)
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())[:200] or type(exc).__name__
 

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from runner.parsing import OneLineParser
+from runner.parsing import EXIT_REFUSED, OneLineParser
 
 
 def build_report_parser() -> argparse.ArgumentParser:
@@ -23,16 +23,28 @@ def build_report_parser() -> argparse.ArgumentParser:
 
 
 def report_main(argv: Sequence[str]) -> int:
-    import reports
-    from runner.export import export, report_context, table_frame
-    from runner.records import open_run_db
-    from runner.rundir import RunDirectory
+    from runner.config import ConfigError
+    from runner.records import SchemaMismatch
 
     args = build_report_parser().parse_args(list(argv))
     for r in args.runs:
         if not (Path(r) / "results.db").is_file():
             print(f"run_benchmark.py report: error: {r}: no results.db (not a salsbench run directory)", file=sys.stderr)
-            return 2
+            return EXIT_REFUSED
+    try:
+        return _report(args)
+    except (SchemaMismatch, ConfigError) as exc:  # a results.db or config.json this version cannot read
+        print(f"run_benchmark.py report: error: {exc}", file=sys.stderr)
+        return EXIT_REFUSED
+
+
+def _report(args: argparse.Namespace) -> int:
+    """The report of one run, or the comparison of several; every run is read before anything is
+    written."""
+    from runner.export import export, report_context, table_frame
+    from runner.records import open_run_db
+    from runner.rundir import RunDirectory
+
     if len(args.runs) == 1:
         written = export(Path(args.runs[0]), out_dir=Path(args.out) if args.out else None)
         print(f"wrote {written['results']}", file=sys.stderr)
@@ -46,6 +58,8 @@ def report_main(argv: Sequence[str]) -> int:
             runs.append({"name": run_dir.name, "results": table_frame(db, "jobs", record),
                          "floor": table_frame(db, "floor", record), "context": report_context(record),
                          "meshes_dir": run_dir / "meshes"})
+    import reports
+
     out.mkdir(parents=True, exist_ok=True)
     reports.compare_runs(runs, out)
     print(f"wrote comparison of {len(runs)} runs to {out}", file=sys.stderr)

@@ -82,8 +82,21 @@ class RunDirectory:
         atomic_write(self.config_path, dumps(record, indent=2).encode())
 
     def read_record(self) -> dict[str, Any]:
-        """The whole config.json (config, resolved facts, environment) or {} when absent."""
-        return json.loads(self.config_path.read_text()) if self.config_path.is_file() else {}
+        """The whole config.json (config, resolved facts, environment) or {} when absent;
+        ConfigError (one line) when it is not a JSON object."""
+        if not self.config_path.is_file():
+            return {}
+        try:
+            record = json.loads(self.config_path.read_text(encoding="utf-8"))
+        except (OSError, ValueError, RecursionError) as exc:  # ValueError: JSON and UTF-8 decode errors
+            raise ConfigError(f"{self.config_path}: not readable JSON ({' '.join(str(exc).split())[:200]})") from None
+        if not isinstance(record, dict):
+            raise ConfigError(f"{self.config_path}: expected a JSON object, got {type(record).__name__}")
+        for key in ("config", "resolved", "environment"):
+            if not isinstance(record.get(key, {}), dict):
+                raise ConfigError(f"{self.config_path}: expected its '{key}' to be a JSON object, got "
+                                  f"{type(record[key]).__name__}")
+        return record
 
     def mesh_relpath(self, shape: str, stem: str) -> str:
         return f"meshes/{safe_name(shape)}/{safe_name(stem)}.ply"

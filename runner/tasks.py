@@ -51,6 +51,8 @@ class TaskSpec:
     seed: int
     plugins: tuple[str, ...] = ()
     threads: int | None = None
+    max_faces: int | None = None
+    max_points: int | None = None
 
     kind = "task"
     uses_fitting = False
@@ -156,7 +158,7 @@ def build_tasks(plan) -> tuple[list[FloorSpec], list[JobSpec]]:
 
     c = plan.config
     common = dict(dataset=c.dataset, dataset_options=plan.dataset_options, metric_preset=c.metric_preset,
-                  plugins=c.plugins, threads=c.threads)
+                  plugins=c.plugins, threads=c.threads, max_faces=c.max_faces, max_points=c.max_points)
     cache_dir = None if c.no_cache else str(cache_root_of(c))
     floors: dict[str, FloorSpec] = {}
     jobs: dict[str, JobSpec] = {}

@@ -8,19 +8,38 @@ with these variables set:
 * ``SALSBENCH_TEST_SEEDS`` (``0,1,2,3,4``): the seeds a test taking ``fit_seed`` runs at (default 0);
 * ``SALSBENCH_TEST_THREADS``: the torch threads of ``torch_threads`` (default 1);
 * ``SALSBENCH_SPREAD_OUT``: a JSON-lines file that ``measured(...)`` appends each test's values to.
+
+The property-based tests of the loaders (Hypothesis; ``tests/loader_fuzz.py``) run under the profile
+named by ``SALSBENCH_HYPOTHESIS``: ``fast`` (the default: a few examples per test, the fast lane) or
+``slow`` (ten times as many). Both are derandomized (the same examples on every run: same seed, same
+result) and keep no example database; Hypothesis's other caches go to the system's temporary folder
+(nothing is written into the checkout).
 """
 
 from __future__ import annotations
 
 import json
 import os
+import tempfile
 from pathlib import Path
 
 import pytest
+from hypothesis import HealthCheck, settings
+from hypothesis.configuration import set_hypothesis_home_dir
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("SALSBENCH_SHARED_DATA", REPO.parent / "shared" / "data"))
 MESH_SUFFIXES = {".obj", ".ply", ".stl", ".off"}
+
+HYPOTHESIS_ENV = "SALSBENCH_HYPOTHESIS"
+#: Examples per property-based test in the fast lane; the slow profile runs ten times as many.
+FAST_EXAMPLES = 50
+for _name, _examples in (("fast", FAST_EXAMPLES), ("slow", 10 * FAST_EXAMPLES)):
+    settings.register_profile(_name, max_examples=_examples, derandomize=True, database=None, deadline=2000,
+                              print_blob=False, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile(os.environ.get(HYPOTHESIS_ENV, "fast"))
+if not os.environ.get("HYPOTHESIS_STORAGE_DIRECTORY"):  # its caches (constants) outside the checkout too
+    set_hypothesis_home_dir(Path(tempfile.gettempdir()) / f"salsbench-hypothesis-{os.getuid()}")
 
 
 def shared_meshes(subdir: str | None = None) -> list[Path]:

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from datasets import (
     Dataset,
@@ -23,6 +25,7 @@ from datasets import (
 from datasets.abc import compose_soup, match_list_entry, read_list_file
 from datasets.registry import DATASETS, available_datasets
 from tests.conftest import SHARED_DATA, requires_shared
+from tests.loader_fuzz import loads_or_refuses
 
 SALS_LIST = SHARED_DATA / "lists" / "sals_abc_list.txt"
 SALS_NONMANIFOLD_LIST = SHARED_DATA / "lists" / "sals_non_manifold_abc_list.txt"
@@ -246,3 +249,67 @@ def test_register_a_custom_dataset():
     assert "test-one-tetra" not in available_datasets()
     with pytest.raises(DatasetError, match="unknown dataset 'test-one-tetra'; known datasets: builtin"):
         get_dataset("test-one-tetra")
+
+
+# -- property-based: any list file gives a dataset or one DatasetError line (issue 41, item 2) -------
+# tests/loader_fuzz.py: the contract each call is held to; the example counts are the Hypothesis
+# profile's (tests/conftest.py).
+
+ABC_STEMS = [f"00000001_{HASH_A}_trimesh_000", f"00000001_{HASH_A}_trimesh_001", f"00000002_{HASH_B}",
+             f"00000003_{HASH_B}_trimesh_004"]
+#: One line of a list: a stem of the folder, a prefix of one, a pair, a comment, or any text.
+LIST_LINES = st.one_of(
+    st.sampled_from(ABC_STEMS + ["00000001", f"00000001_{HASH_A}", f"00000002_{HASH_B}_trimesh_009", "00000005"]),
+    st.tuples(st.sampled_from(ABC_STEMS), st.sampled_from(ABC_STEMS)).map("+".join),
+    st.text(max_size=30).map(lambda t: "# " + t), st.text(max_size=30))
+LIST_TEXT = st.tuples(st.lists(LIST_LINES, max_size=8), st.sampled_from(["\n", "\r\n", "\r", "\n\n"])).map(
+    lambda lines_and_end: lines_and_end[1].join(lines_and_end[0]))
+LIST_BYTES = st.one_of(
+    st.tuples(LIST_TEXT, st.sampled_from(["utf-8", "latin-1", "utf-16", "cp1252"])).map(
+        lambda t: t[0].encode(t[1], errors="replace")),
+    st.binary(max_size=300))
+
+
+@pytest.fixture(scope="module")
+def list_dir(tmp_path_factory):
+    root = tmp_path_factory.mktemp("abc")
+    for i, stem in enumerate(ABC_STEMS):
+        save_mesh(root / f"{stem}.ply", *tetra(1.0 + i))
+    return root, tmp_path_factory.mktemp("lists")
+
+
+@given(data=LIST_BYTES)
+def test_any_list_file_gives_its_stripped_entries(list_dir, data):
+    """read_list_file reads any bytes: entries stripped, non-empty, without comments, line breaks or
+    repeats, in file order."""
+    path = list_dir[1] / "list.txt"
+    path.write_bytes(data)
+    entries = loads_or_refuses(read_list_file, path, DatasetError)
+    assert entries is not None and len(set(entries)) == len(entries)
+    for entry in entries:
+        assert entry and entry == entry.strip() and "#" not in entry and len(entry.splitlines()) == 1
+
+
+@pytest.mark.parametrize("name", ["abc", "abc-nonmanifold"])
+@given(data=LIST_BYTES)
+def test_any_list_file_gives_a_dataset_or_one_dataset_error_line(list_dir, name, data):
+    """An ABC or non-manifold dataset over any list file: its shapes are entries of the list (each
+    loads), its missing entries are one warning line; or one DatasetError line naming the list."""
+    folder, lists = list_dir
+    path = lists / "list.txt"
+    path.write_bytes(data)
+
+    def build(list_file):
+        with warnings.catch_warnings(record=True) as seen:
+            warnings.simplefilter("always", MissingShapesWarning)
+            dataset = get_dataset(name, data_dir=folder, list_file=list_file)
+        assert all(issubclass(w.category, MissingShapesWarning) and len(str(w.message).splitlines()) == 1
+                   for w in seen)
+        return dataset
+
+    dataset = loads_or_refuses(build, path, DatasetError)
+    if dataset is not None:
+        entries = read_list_file(path)
+        assert dataset.names() and set(dataset.names()) <= set(entries)
+        assert set(dataset.missing) == set(entries) - set(dataset.names())
+        assert dataset.load(dataset.names()[0]).faces.shape[1] == 3

@@ -4,14 +4,20 @@ from __future__ import annotations
 
 import re
 import sys
+import warnings
 
 import numpy as np
 import pytest
 import trimesh
 
+from hypothesis import given
+from hypothesis import strategies as st
+
 from tests.conftest import SHARED_DATA, shared_meshes
+from tests.loader_fuzz import COUNTS, FLOATS, loads_or_refuses, mutated, truncations
 from datasets.formats import parse_off
 from datasets.io import (
+    MESH_EXTENSIONS,
     MeshError,
     Normalization,
     classify_topology,
@@ -141,7 +147,8 @@ BAD_INPUTS = {
     "bad_type.ply": (PLY_HEAD.replace("float y", "flaot y") + PLY_FACE,
                      "PLY header line 5 is not a property of a declared element: 'property flaot y'"),
     "truncated.ply": (PLY_HEAD.replace("ascii", "binary_little_endian") + PLY_FACE.split("end_header")[0] + "end_header\n",
-                      "PLY data does not match its header (PLY is unexpected length!)"),
+                      "PLY data does not match its header (it declares 3 vertex, 1 face: at least 37 bytes of "
+                      "binary data; the file holds 0)"),
 }
 
 
@@ -313,3 +320,158 @@ def test_save_and_load_round_trip(tmp_path):
     vertices, faces = read_mesh_arrays(path)
     np.testing.assert_allclose(vertices, box.vertices)
     np.testing.assert_array_equal(faces, box.faces)
+
+
+# -- property-based: any bytes give a mesh or one MeshError line (issue 41, item 2) ------------------
+# tests/loader_fuzz.py: the contract each call is held to and the strategies; the example counts are
+# the Hypothesis profile's (tests/conftest.py).
+
+TETRA_V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float)
+TETRA_F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+
+
+def mesh_files(vertices, faces) -> dict[str, tuple[str, bytes]]:
+    """format -> (extension, the bytes of that file) of one mesh, in every format the loaders read."""
+    mesh = trimesh.Trimesh(vertices, faces, process=False, validate=False)
+    rows = [" ".join(map(repr, map(float, v))) for v in vertices]  # repr: the exact float64 values
+    off = (f"OFF\n{len(vertices)} {len(faces)} 0\n" + "".join(r + "\n" for r in rows)
+           + "".join("3 " + " ".join(map(str, f)) + "\n" for f in faces))
+    obj = "".join(f"v {r}\n" for r in rows) + "".join("f " + " ".join(str(i + 1) for i in f) + "\n" for f in faces)
+    return {"obj": (".obj", obj.encode()), "off": (".off", off.encode()),
+            "ply_ascii": (".ply", mesh.export(file_type="ply", encoding="ascii")),
+            "ply_binary": (".ply", mesh.export(file_type="ply")),
+            "stl_binary": (".stl", mesh.export(file_type="stl")),
+            "stl_ascii": (".stl", mesh.export(file_type="stl_ascii").encode()),
+            "glb": (".glb", mesh.export(file_type="glb"))}
+
+
+VALID_MESHES = mesh_files(TETRA_V, TETRA_F)
+#: The header numbers of each format that a count mutation replaces, and the coordinates a number
+#: mutation replaces.
+MESH_COUNTS = [(b"4 4 0", b"%d 4 0"), (b"4 4 0", b"4 %d 0"), (b"element vertex 4", b"element vertex %d"),
+               (b"element face 4", b"element face %d"), (b'"count":4', b'"count":%d'), (b'"count":12', b'"count":%d')]
+MESH_NUMBERS = [b"1.0", b"1.00000000", b"0.0", b"0.00000000", b"1.0000000e+00", b"0.0000000e+00"]
+#: Formats whose header states how much data follows: a truncated file is refused or loads whole.
+COUNTED = ["off", "ply_ascii", "ply_binary", "stl_binary", "stl_ascii", "glb"]
+
+
+def _assert_canonical(shape):
+    """A loaded shape is usable: finite float64 vertices, those of its faces in the canonical box
+    (a vertex no face uses may lie outside), at least one int64 triangle indexing them."""
+    v, f = shape.vertices, shape.faces
+    assert v.dtype == np.float64 and v.ndim == 2 and v.shape[1] == 3 and np.isfinite(v).all()
+    assert f.dtype == np.int64 and f.ndim == 2 and f.shape[1] == 3 and len(f) > 0
+    assert f.min() >= 0 and f.max() < len(v)
+    assert np.abs(v[np.unique(f)]).max() <= 0.995 + 1e-9
+
+
+def _load_as(folder, extension: str, data: bytes):
+    path = folder / f"fuzzed{extension}"
+    path.write_bytes(data)
+    shape = loads_or_refuses(load_shape, path, MeshError)
+    if shape is not None:
+        _assert_canonical(shape)
+    return shape
+
+
+@pytest.fixture(scope="module")
+def fuzz_dir(tmp_path_factory):
+    load_shape(_write(tmp_path_factory.mktemp("warm") / "t.glb", VALID_MESHES["glb"][1]))  # imports before timing
+    return tmp_path_factory.mktemp("fuzz")
+
+
+MAGIC = st.sampled_from([b"", b"ply\nformat ascii 1.0\n", b"ply\nformat binary_little_endian 1.0\n", b"OFF\n",
+                         b"v ", b"solid x\n", b"glTF\x02\x00\x00\x00", b"\x00" * 80])
+
+
+@given(extension=st.sampled_from(MESH_EXTENSIONS), data=st.tuples(MAGIC, st.binary(max_size=600)).map(b"".join))
+def test_any_bytes_give_a_mesh_or_one_mesh_error_line(fuzz_dir, extension, data):
+    """Random bytes, alone or after the start of a header, under every mesh extension."""
+    _load_as(fuzz_dir, extension, data)
+
+
+@pytest.mark.parametrize("fmt", sorted(VALID_MESHES))
+@given(data=st.data())
+def test_a_damaged_mesh_file_gives_a_mesh_or_one_mesh_error_line(fuzz_dir, fmt, data):
+    """A valid file truncated, with bytes flipped, inserted or deleted, a count or a number changed."""
+    _load_as(fuzz_dir, VALID_MESHES[fmt][0], data.draw(mutated(VALID_MESHES[fmt][1], MESH_COUNTS, MESH_NUMBERS)))
+
+
+@pytest.mark.parametrize("fmt", COUNTED)
+@given(data=st.data())
+def test_a_truncated_mesh_file_is_refused_or_read_whole(fuzz_dir, fmt, data):
+    """A format that states its counts (or, ASCII STL, its end) never loads part of a cut file:
+    the cut is refused, or it only removed what held no data (the last digits of a number aside)."""
+    extension, valid = VALID_MESHES[fmt]
+    path = fuzz_dir / f"cut{extension}"
+    path.write_bytes(data.draw(truncations(valid)))
+    arrays = loads_or_refuses(read_mesh_file, path, MeshError)
+    if arrays is not None:
+        assert arrays[0].shape == TETRA_V.shape and arrays[1].shape == TETRA_F.shape
+
+
+@pytest.mark.parametrize("fmt, old, new", [
+    ("ply_ascii", b"element vertex 4", b"element vertex %d"), ("ply_ascii", b"element face 4", b"element face %d"),
+    ("ply_binary", b"element vertex 4", b"element vertex %d"), ("ply_binary", b"element face 4", b"element face %d"),
+    ("off", b"4 4 0", b"%d 4 0"), ("off", b"4 4 0", b"4 %d 0"), ("glb", b'"count":4', b'"count":%d'),
+    ("stl_binary", b"\x04\x00\x00\x00", None)])
+@given(count=COUNTS)
+def test_a_header_count_the_data_does_not_hold_is_refused_before_allocating(fuzz_dir, fmt, old, new, count):
+    """A count in a header (up to 10^20) is checked against the data before arrays are allocated
+    (the load's traced peak stays under 64 MiB): more than the file holds is refused, the true
+    count loads, fewer may load fewer elements where a format allows data beyond them (OFF, glTF)."""
+    extension, valid = VALID_MESHES[fmt]
+    if new is None:  # binary STL: the little-endian triangle count at bytes 80-83
+        count %= 2**32
+        data = valid[:80] + count.to_bytes(4, "little") + valid[84:]
+    else:
+        data = valid.replace(old, new % count, 1)
+    path = fuzz_dir / f"counted{extension}"
+    path.write_bytes(data)
+    arrays = loads_or_refuses(read_mesh_file, path, MeshError, trace_memory=True)
+    if count > 4:
+        assert arrays is None
+    elif count == 4:
+        assert arrays is not None and arrays[0].shape == (4, 3) and arrays[1].shape == (4, 3)
+
+
+@given(fmt=st.sampled_from(sorted(VALID_MESHES)), coordinates=st.lists(FLOATS, min_size=12, max_size=12))
+def test_nan_inf_and_extreme_coordinates_give_a_mesh_or_one_mesh_error_line(fuzz_dir, fmt, coordinates):
+    """Any float64 coordinates (NaN, inf, 1e308, denormals, -0.0) in any format: a valid canonical
+    shape, or one line (NaN/inf vertices, a box beyond float64, a degenerate mesh)."""
+    vertices = np.array(coordinates).reshape(4, 3)
+    with np.errstate(all="ignore"), warnings.catch_warnings():  # trimesh's export of inf and 1e308 warns
+        warnings.simplefilter("ignore")
+        if fmt in ("ply_ascii", "ply_binary", "stl_binary", "stl_ascii", "glb"):
+            vertices = vertices.astype(np.float32)  # what those files store
+        extension, data = mesh_files(vertices, TETRA_F)[fmt]
+    shape = _load_as(fuzz_dir, extension, data)
+    if shape is not None:
+        assert np.isfinite(vertices).all()
+
+
+#: Text a comment may hold: letters, digits, punctuation, symbols and spaces of any script.
+COMMENTS = st.text(st.characters(categories=["L", "N", "P", "S", "Zs"]), max_size=20)
+
+
+@given(fmt=st.sampled_from(["obj", "off", "ply_ascii"]), comment=COMMENTS,
+       encoding=st.sampled_from(["utf-8", "latin-1", "cp1252", "utf-16", "utf-8-sig"]))
+def test_a_comment_in_any_encoding_loads_the_same_mesh_or_one_line(fuzz_dir, fmt, comment, encoding):
+    """A comment (OBJ/OFF '#', PLY 'comment') in any encoding: an ASCII-compatible one (UTF-8,
+    Latin-1, cp1252) loads exactly the mesh without it; the others are refused in one line."""
+    extension, valid = VALID_MESHES[fmt]
+    text = valid.decode("ascii")
+    if fmt == "obj":
+        text = f"# {comment}\n" + text
+    elif fmt == "off":
+        text = text.replace("\n", f"  # {comment}\n", 1)
+    else:
+        text = text.replace("format ascii 1.0\n", f"format ascii 1.0\ncomment {comment}\n", 1)
+    path = fuzz_dir / f"encoded{extension}"
+    path.write_bytes(text.encode(encoding, errors="replace"))
+    arrays = loads_or_refuses(read_mesh_file, path, MeshError)
+    if encoding in ("utf-8", "latin-1", "cp1252"):
+        assert arrays is not None
+        path.write_bytes(valid)
+        for got, want in zip(arrays, read_mesh_file(path)):
+            np.testing.assert_array_equal(got, want)

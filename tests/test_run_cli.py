@@ -492,3 +492,40 @@ def test_a_changed_method_is_refused_in_its_run_directory_or_recomputed_on_reque
         METHODS.unregister("test_probe")
         sys.modules.pop("zz_probe_method", None)
         code_digest.cache_clear()
+
+
+def test_a_mesh_over_the_face_limit_fails_its_jobs_in_one_line_and_the_run_goes_on(fakes, tmp_path):
+    import trimesh
+
+    meshes = tmp_path / "meshes"
+    meshes.mkdir()
+    trimesh.creation.icosphere(5).export(meshes / "big.ply")  # 20,480 faces
+    trimesh.creation.box().export(meshes / "small.ply")  # 12 faces
+    out = tmp_path / "run"
+    code = main(["--methods", "test_sdf", "--mode", "oracle", "--dataset", "meshes", "--data-dir", str(meshes),
+                 "--grid", "24", "--eval-points", "5000", "--max-faces", "10000", "--out", str(out),
+                 "--cache-dir", str(tmp_path / "cache"), "--plugin", PLUGIN, "--quiet", "--executor", "local"])
+    assert code == EXIT_FAILED_TASKS
+    df = read_results(out).set_index("shape")
+    assert df.loc["small", "status"] == "ok" and df.loc["big", "status"] == "failed"
+    assert df.loc["big", "error"] == (f"loading: ShapeTooLarge: {meshes / 'big.ply'}: 20,480 faces, over the limit "
+                                      f"of 10,000 (--max-faces)")
+
+
+def test_pc_points_over_the_point_limit_are_refused_before_any_work(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["--task", "reconstruct", "--methods", "poisson", "--pc-points", "2000", "--max-points", "1000",
+                 "--out", str(out)]) == EXIT_REFUSED
+    assert "--pc-points 2000 is over the limit of 1000 points a job may hold (--max-points)" in one_error_line(capsys)
+    assert not out.exists()
+
+
+def test_a_cloud_over_the_point_limit_is_too_large():
+    from datasets.io import Shape
+    from runner.job import ShapeTooLarge, check_size
+
+    cloud = Shape("scan", np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), source="/data/scan.xyz",
+                  points=np.zeros((1001, 3)))
+    check_size(cloud, max_faces=10, max_points=1001)
+    with pytest.raises(ShapeTooLarge, match=r"^/data/scan.xyz: 1,001 points, over the limit of 1,000 \(--max-points\)$"):
+        check_size(cloud, max_faces=10, max_points=1000)
