@@ -111,6 +111,7 @@ def test_clouds_without_a_gt_are_reconstructed_and_listed_apart_from_the_scored(
     assert "not scored (no GT)" in (out / "report.html").read_text()
 
 
+@pytest.mark.slow
 def test_a_reconstruct_run_uses_the_files_points(folder, tmp_path, capsys):
     path, _ = folder
     out = tmp_path / "run"

@@ -225,6 +225,7 @@ def test_local_table_has_the_failure_recorded(local_table):
     _check_table(local_table[0])
 
 
+@pytest.mark.slow
 def test_default_executor_runs_process_workers_and_gives_the_local_table(mesh_dir, tmp_path, local_table, monkeypatch):
     """No --executor: on a CPU with two physical cores or more the jobs run in one process per core
     (at least 2 here), the table is the local one, config.json and timing.md name how they ran."""

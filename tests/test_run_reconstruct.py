@@ -30,6 +30,7 @@ def test_the_input_cloud_is_seeded_on_the_surface_and_noised_as_asked(shape):
     assert np.std(noisy - a) == pytest.approx(0.01, rel=0.05)  # the clean cloud plus N(0, sigma^2) per axis
 
 
+@pytest.mark.slow
 def test_poisson_runs_as_a_reconstruct_task_end_to_end(tmp_path):
     out = tmp_path / "run"
     code = main(["--task", "reconstruct", "--methods", "poisson", "--limit", "1", "--grid", "32", "--pc-points",
