@@ -372,7 +372,7 @@ PRESENTATION: dict[str, Presentation] = {}
 def register_method(cls: type[Method] | None = None, /, *, order: int = 100, color: str = "#7f7f7f",
                     note: str = ""):
     """Class decorator: make a :class:`Method` subclass available under ``cls.name``, shown with
-    ``order``, ``color`` and ``note`` (:class:`Presentation`). ``@register_method`` alone gives the
+    ``order``, ``color`` and ``note`` (:class:`Presentation`). Used bare as a decorator it gives the
     defaults; ``register_method(cls, order=...)`` registers a class directly."""
     def register(cls: type[Method]) -> type[Method]:
         if not cls.name:
