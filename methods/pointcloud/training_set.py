@@ -56,7 +56,7 @@ from benchmark.seeding import training_streams
 from benchmark.surface import sample_surface
 from datasets import MeshError, Shape, get_dataset
 from datasets.builtin import VARIANTS, generate_shape
-from methods.core.training_loop import FittingError
+from methods.core.training_loop import FittingError, run_steps
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -244,3 +244,21 @@ class TrainingPools:
 
     def __len__(self) -> int:
         return len(self.pools)
+
+
+def train_steps(method, model: torch.nn.Module, optimizer: torch.optim.Optimizer, budget, family: str,
+                step_loss: Callable[[int], torch.Tensor], *, seed: int, batch: int, pool_seconds: float,
+                device, progress: Callable[..., None] | None = None) -> TrainResult:
+    """``budget.steps`` optimizer steps of ``step_loss`` (:func:`methods.core.training_loop.run_steps`:
+    every ``budget.log_every`` steps a loss check and ``progress(step=..., loss=..., total=steps)``; a
+    non-finite loss names the step, the method, the ``family`` budget and the seed), as a
+    :class:`TrainResult` of ``batch`` samples per step."""
+    steps = int(budget.steps)
+    report = None if progress is None else lambda step, loss: progress(step=step, loss=loss, total=steps)
+    result = run_steps(model, optimizer, steps, step_loss, log_every=budget.log_every,
+                       where=lambda i: (f"step {i} of {steps} (method '{method.name}', {family} budget "
+                                        f"'{budget.name}', seed {seed})"),
+                       progress=report, device=device)
+    return TrainResult(model=model, losses=result.losses, seconds=result.seconds, steps=steps,
+                       samples_per_s=steps * batch / max(result.seconds, 1e-9), final_loss=result.final_loss,
+                       pool_seconds=pool_seconds)

@@ -50,9 +50,8 @@ from methods.core.device import get_device, seeded_generator
 from methods.pointcloud.gifs.extraction import CORNER_PAIRS, CORNERS, flag_split_marching_cubes
 from methods.pointcloud.gifs.network import GIFSNetwork, make_gifs_network, voxelize_cloud
 from methods.pointcloud.neighbourhoods import band_points
-from methods.pointcloud.training_set import TrainingPools, TrainingSet, TrainResult
+from methods.pointcloud.training_set import TrainingPools, TrainingSet, TrainResult, train_steps
 from methods.pointcloud.own_network import OwnNetworkMethod
-from methods.core.training_loop import run_steps
 
 __all__ = ["GIFSBudget", "GIFS_FAMILY", "draw_pairs", "draw_batch", "gifs_loss", "train_gifs",
            "encode_cloud", "point_udf", "cube_flags", "refine_vertices", "GIFSMethod"]
@@ -185,14 +184,9 @@ def train_gifs(method, shapes: Sequence, budget: GIFSBudget, seed: int = 0, devi
         udf_hat, flag_hat = model(pairs, voxels)
         return gifs_loss(udf_hat, flag_hat, udf, flag, budget.udf_weight, budget.udf_clamp)
 
-    T = budget.steps
-    report = None if progress is None else lambda step, loss: progress(step=step, loss=loss, total=T)
-    result = run_steps(model, optimizer, T, step_loss, log_every=budget.log_every,
-                       where=lambda i: f"step {i} of {T} (method '{method.name}', budget '{budget.name}', seed {seed})",
-                       progress=report, device=device)
-    return TrainResult(model=model, losses=result.losses, seconds=result.seconds, steps=T,
-                          samples_per_s=T * budget.batch * budget.pairs / max(result.seconds, 1e-9),
-                          final_loss=result.final_loss, pool_seconds=pools.seconds)
+    return train_steps(method, model, optimizer, budget, "gifs", step_loss, seed=seed,
+                       batch=budget.batch * budget.pairs, pool_seconds=pools.seconds, device=device,
+                       progress=progress)
 
 
 # --------------------------------------------------------------------------------------------------

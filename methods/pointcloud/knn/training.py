@@ -43,11 +43,10 @@ from datasets import Shape
 from methods.base import LearnedPointCloudMethod
 from methods.core.budgets import budget_values, register_budget_family
 from methods.core.device import get_device, seeded_generator
-from methods.core.training_loop import run_steps
 from methods.core.weights import weights_from_bytes, weights_to_bytes
 from methods.pointcloud.knn.network import make_knn_network
 from methods.pointcloud.neighbourhoods import knn_neighbourhoods, segment_neighbourhoods
-from methods.pointcloud.training_set import TrainingPools, TrainingSet, TrainResult
+from methods.pointcloud.training_set import TrainingPools, TrainingSet, TrainResult, train_steps
 
 __all__ = ["KNNBudget", "KNN_FAMILY", "KNN_BUDGETS", "get_knn_budget", "knn_batch", "train", "knn_model_to_bytes",
            "knn_model_from_bytes", "KNNTrainedMethod"]
@@ -188,7 +187,6 @@ def train(method, shapes: Sequence[Shape], budget: str | KNNBudget, seed: int = 
     rng = training_streams(seed).batch_rng()
     model = make_knn_network(method.network_kind, out_dim=method.output_dim, **budget.network_config()).to(device)
     optimizer = torch.optim.AdamW(model.parameters(), lr=budget.lr, weight_decay=budget.weight_decay)
-    T = int(budget.steps)
 
     def step_loss(step: int) -> torch.Tensor:
         a, q, t = knn_batch(pools, budget, rng)
@@ -196,15 +194,11 @@ def train(method, shapes: Sequence[Shape], budget: str | KNNBudget, seed: int = 
         targets = {k: torch.from_numpy(v).to(device) for k, v in t.items()}
         return method.loss(model(anchors, torch.from_numpy(q).to(device)), targets)
 
-    report = None if progress is None else lambda step, loss: progress(step=step, loss=loss, total=T)
-    result = run_steps(model, optimizer, T, step_loss, log_every=budget.log_every,
-                       where=lambda i: f"step {i} of {T} (method '{method.name}', knn budget '{budget.name}', seed {seed})",
-                       progress=report, device=device)
+    result = train_steps(method, model, optimizer, budget, "knn", step_loss, seed=seed,
+                         batch=budget.shapes_per_batch * budget.samples_per_item, pool_seconds=pools.seconds,
+                         device=device, progress=progress)
     model.knn_k = budget.k
-    B = budget.shapes_per_batch * budget.samples_per_item
-    return TrainResult(model=model, losses=result.losses, seconds=result.seconds, steps=T,
-                          samples_per_s=T * B / max(result.seconds, 1e-9), final_loss=result.final_loss,
-                          pool_seconds=pools.seconds)
+    return result
 
 
 # --------------------------------------------------------------------------------------------------

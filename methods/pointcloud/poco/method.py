@@ -47,12 +47,11 @@ from benchmark.seeding import training_streams
 from methods.base import Extraction, register_method
 from methods.core.budgets import register_budget_family
 from methods.core.device import get_device, seeded_generator
-from methods.core.training_loop import run_steps
 from methods.extractors.marching_cubes import far_occupancy, marching_cubes_grid
 from methods.pointcloud.neighbourhoods import band_points, knn_neighbourhoods
 from methods.pointcloud.own_network import OwnNetworkMethod
 from methods.pointcloud.poco.network import POCONetwork, batch_structures, cloud_structure, make_poco_network
-from methods.pointcloud.training_set import TrainingPools, TrainingSet, TrainResult
+from methods.pointcloud.training_set import TrainingPools, TrainingSet, TrainResult, train_steps
 
 __all__ = ["POCOBudget", "POCO_FAMILY", "random_rotation", "draw_batch", "train_poco",
            "point_latents", "inside_probability", "refine_vertices", "POCOMethod"]
@@ -176,14 +175,9 @@ def train_poco(method, shapes: Sequence, budget: POCOBudget, seed: int = 0, devi
         logits = model(structures, torch.from_numpy(queries).to(device), torch.from_numpy(index).to(device))
         return method.loss(logits.reshape(-1, 2), {"occupancy": torch.from_numpy(labels.reshape(-1)).to(device)})
 
-    T = budget.steps
-    report = None if progress is None else lambda step, loss: progress(step=step, loss=loss, total=T)
-    result = run_steps(model, optimizer, T, step_loss, log_every=budget.log_every,
-                       where=lambda i: f"step {i} of {T} (method '{method.name}', budget '{budget.name}', seed {seed})",
-                       progress=report, device=device)
-    return TrainResult(model=model, losses=result.losses, seconds=result.seconds, steps=T,
-                          samples_per_s=T * budget.batch * budget.queries / max(result.seconds, 1e-9),
-                          final_loss=result.final_loss, pool_seconds=pools.seconds)
+    return train_steps(method, model, optimizer, budget, "poco", step_loss, seed=seed,
+                       batch=budget.batch * budget.queries, pool_seconds=pools.seconds, device=device,
+                       progress=progress)
 
 
 # --------------------------------------------------------------------------------------------------
