@@ -35,12 +35,17 @@ def decode_text(data: bytes, kind: str) -> str:
         return data.decode("latin-1")  # comments/names in a legacy encoding; numbers are ASCII
 
 
+def binary_stl(data: bytes) -> bool:
+    """True when ``data`` is a binary STL: its size is 84 + 50 x the triangle count of its header."""
+    return len(data) >= 84 and len(data) == 84 + 50 * int.from_bytes(data[80:84], "little")
+
+
 def stl_bytes(data: bytes) -> bytes:
-    """What trimesh gets of an STL file: a binary STL as is (its size is 84 + 50 x the triangle
-    count of its header), an ASCII STL decoded here and re-encoded as UTF-8; else MeshError."""
-    count = int.from_bytes(data[80:84], "little") if len(data) >= 84 else None
-    if count is not None and len(data) == 84 + 50 * count:
+    """What trimesh gets of an STL file: a binary STL as is (:func:`binary_stl`), an ASCII STL
+    decoded here and re-encoded as UTF-8; else MeshError."""
+    if binary_stl(data):
         return data
+    count = int.from_bytes(data[80:84], "little") if len(data) >= 84 else None
     if count is None:
         as_binary = f"{len(data)} bytes, shorter than a binary STL header (84 bytes)"
     else:

@@ -29,6 +29,7 @@ from benchmark.surface import MIN_RELATIVE_AREA, relative_area
 from datasets.formats import (
     MeshError,
     ascii_stl_vertex_count,
+    binary_stl,
     decode_text,
     parse_obj,
     parse_off,
@@ -239,7 +240,7 @@ def read_mesh_file(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
         raise MeshError(f"{what}: contains no triangle mesh (got {type(loaded).__name__})")
     vertices = np.asarray(loaded.vertices, dtype=np.float64).reshape(-1, 3)
     faces = np.asarray(loaded.faces, dtype=np.int64).reshape(-1, 3)
-    if stl is not None and stl is not data and ascii_stl_vertex_count(stl) != 3 * len(faces):
+    if stl is not None and not binary_stl(data) and ascii_stl_vertex_count(stl) != 3 * len(faces):
         raise MeshError(f"{what}: unreadable ASCII STL ({ascii_stl_vertex_count(stl):,} 'vertex' lines, but only "
                         f"{len(faces):,} whole triangles could be read: a malformed number or facet?)")
     if suffix == ".stl" and len(faces) and len(vertices) == 3 * len(faces):
