@@ -137,6 +137,9 @@ class _FolderDataset(Dataset):
     def load(self, name: str) -> Shape:
         return _load_with_kind(self._shape_path(name), name, self.kind)
 
+    def stored_files(self, name: str) -> tuple[tuple[Path, str], ...]:
+        return ((self._shape_path(name), "mesh"),)
+
     def options(self) -> dict[str, Any]:
         return {"data_dir": str(self.data_dir), "recursive": self.recursive, "limit": self.limit,
                 "seed": self.seed, "kind": self.kind}
@@ -244,6 +247,10 @@ class ABCNonManifoldDataset(ABCDataset):
         part_names = name.split("+")
         parts = [load_shape(path, name=n) for path, n in zip(self._pairs[name], part_names)]
         return compose_soup(name, parts)
+
+    def stored_files(self, name: str) -> tuple[tuple[Path, str], ...]:
+        self._shape_path(name)
+        return tuple((path, "mesh") for path in self._pairs[name])
 
     def describe(self) -> dict[str, Any]:
         return {**Dataset.describe(self), "missing": list(self.missing),

@@ -162,5 +162,11 @@ class PointCloudDataset(Dataset):
         return Shape(name, mesh.vertices, mesh.faces, mesh.transform, str(cloud), classify_topology(mesh.faces),
                      {"gt": str(gt)}, points)
 
+    def stored_files(self, name: str) -> tuple[tuple[Path, str], ...]:
+        if name not in self._paths:
+            raise self._unknown_shape(name)
+        gt = gt_path(self._paths[name])
+        return ((self._paths[name], "cloud"),) + (((gt, "mesh"),) if gt is not None else ())
+
     def options(self) -> dict[str, Any]:
         return {"data_dir": str(self.data_dir)}

@@ -7,6 +7,7 @@ A dataset is a named, ordered collection of shapes that loads lazily:
   raises :class:`~datasets.io.MeshError` (one line naming the file) when that shape is unusable;
 * ``for shape in dataset`` loads the shapes one after the other (a failure stops the loop: to go on
   past a bad shape iterate ``names()`` and catch per shape, or use :meth:`Dataset.iter_safe`);
+* ``stored_files(name)`` names the files ``load(name)`` reads (for a size check before reading);
 * ``describe()`` is the JSON-ready record of the dataset and its options for a run's config.json.
 
 Datasets declare themselves with :func:`register_dataset` and are built with :func:`get_dataset`.
@@ -60,6 +61,11 @@ class Dataset:
     def options(self) -> dict[str, Any]:
         """The options this dataset was built with (JSON-ready)."""
         return {}
+
+    def stored_files(self, name: str) -> tuple[tuple[Path, str], ...]:
+        """The files ``load(name)`` reads, each with what it holds ('mesh' or 'cloud'), so a job can
+        check their sizes before reading them; () for a generated shape."""
+        return ()
 
     def __len__(self) -> int:
         return len(self.names())

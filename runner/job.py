@@ -27,6 +27,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from runner.memory import memory_limit, out_of_memory
 from runner.tasks import FloorSpec, JobSpec, digest, load_dataset
 from benchmark.storage import CacheStats
 from benchmark.timing import StageTimer, stage
@@ -135,7 +136,7 @@ def _run(spec, progress: Callable | None, body: Callable) -> TaskResult:
     timer = StageTimer()
     t0 = time.perf_counter()
     try:
-        with timer.active():
+        with timer.active(), memory_limit(spec.worker_memory):
             report("loading")
             import_plugins(spec.plugins)
             if spec.threads:
@@ -147,7 +148,9 @@ def _run(spec, progress: Callable | None, body: Callable) -> TaskResult:
             timer.sync = timer_sync(device)
             result.device = describe_device(device)
             with stage("load"):
-                shape = load_dataset(spec.dataset, spec.dataset_options).load(spec.shape)
+                dataset = load_dataset(spec.dataset, spec.dataset_options)
+                check_stored_size(dataset.stored_files(spec.shape), spec.max_faces, spec.max_points)
+                shape = dataset.load(spec.shape)
                 check_size(shape, spec.max_faces, spec.max_points)
             result.shape_hash, result.shape_kind = shape.content_hash, shape.kind
             body(spec, shape, device, timer, result, report)
@@ -155,6 +158,10 @@ def _run(spec, progress: Callable | None, body: Callable) -> TaskResult:
     except Exception as exc:  # noqa: BLE001 -- every failure becomes a failed row, the run goes on
         result.status = "failed"
         result.error = one_line(exc, report.stage)
+        if out_of_memory(exc):
+            limit = f" of --worker-memory {spec.worker_memory:g} GiB" if spec.worker_memory else ""
+            result.error = one_line(exc, f"{report.stage}: out of memory (past the limit{limit})" if limit
+                                    else f"{report.stage}: out of memory")
         result.traceback = _traceback.format_exc()
     timer.add("total_s", time.perf_counter() - t0)
     result.timings = dict(timer.seconds)
@@ -164,6 +171,21 @@ def _run(spec, progress: Callable | None, body: Callable) -> TaskResult:
 
 class ShapeTooLarge(ValueError):
     """A shape over the run's size limits (``--max-faces``, ``--max-points``); one line naming its file."""
+
+
+def check_stored_size(files, max_faces: int | None, max_points: int | None) -> None:
+    """Raise :class:`ShapeTooLarge` when one of ``files`` ((path, 'mesh' or 'cloud') pairs:
+    ``Dataset.stored_files``) stores more faces (a mesh) or points (a cloud) than the limits, as its
+    header or a bounded-memory count says (:func:`datasets.stored_size.stored_count`), before it
+    is read. None: no limit."""
+    from datasets.stored_size import stored_count
+
+    for path, holds in files:
+        what, limit, flag = ("faces", max_faces, "--max-faces") if holds == "mesh" else ("points", max_points,
+                                                                                           "--max-points")
+        count = stored_count(path, what) if limit is not None else None
+        if count is not None and count > limit:
+            raise ShapeTooLarge(f"{path}: stores {count:,} {what}, over the limit of {limit:,} ({flag}); not read")
 
 
 def check_size(shape, max_faces: int | None, max_points: int | None) -> None:

@@ -508,8 +508,26 @@ def test_a_mesh_over_the_face_limit_fails_its_jobs_in_one_line_and_the_run_goes_
     assert code == EXIT_FAILED_TASKS
     df = read_results(out).set_index("shape")
     assert df.loc["small", "status"] == "ok" and df.loc["big", "status"] == "failed"
-    assert df.loc["big", "error"] == (f"loading: ShapeTooLarge: {meshes / 'big.ply'}: 20,480 faces, over the limit "
-                                      f"of 10,000 (--max-faces)")
+    assert df.loc["big", "error"] == (f"loading: ShapeTooLarge: {meshes / 'big.ply'}: stores 20,480 faces, over the "
+                                      f"limit of 10,000 (--max-faces); not read")
+
+
+def test_a_file_whose_header_declares_too_many_faces_is_refused_before_its_body_is_read(fakes, tmp_path):
+    """The header says 30M faces, the body holds none: a loader would fail on the body; the size
+    check refuses the file on its header alone, which is what bounds a job's memory."""
+    meshes = tmp_path / "meshes"
+    meshes.mkdir()
+    (meshes / "huge.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\n"
+                                      b"property float y\nproperty float z\nelement face 30000000\n"
+                                      b"property list uchar int vertex_indices\nend_header\n")
+    out = tmp_path / "run"
+    code = main(["--methods", "test_sdf", "--mode", "oracle", "--dataset", "meshes", "--data-dir", str(meshes),
+                 "--grid", "24", "--eval-points", "5000", "--out", str(out), "--cache-dir", str(tmp_path / "cache"),
+                 "--plugin", PLUGIN, "--quiet", "--executor", "local"])
+    assert code == EXIT_FAILED_TASKS
+    df = read_results(out)
+    assert list(df.error) == [f"loading: ShapeTooLarge: {meshes / 'huge.ply'}: stores 30,000,000 faces, over the "
+                              f"limit of 5,000,000 (--max-faces); not read"]
 
 
 def test_pc_points_over_the_point_limit_are_refused_before_any_work(tmp_path, capsys):
