@@ -101,6 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
     setting("retries", metavar="R")
     setting("max_faces", metavar="N")
     setting("max_points", metavar="N")
+    setting("worker_memory", metavar="GIB")
     setting("checkpoints", type=_comma_list, metavar="F1,F2,...")
     setting("decompose", action="store_const", const=True)
     setting("method_params", action="append", metavar="METHOD.NAME=VALUE")

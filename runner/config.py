@@ -169,6 +169,11 @@ class RunConfig:
     max_points: int = _setting(
         "execution", 10_000_000, "a point cloud with more points (a file of the pointclouds dataset, or "
         "--pc-points) is refused likewise (default 10,000,000)", ge=1)
+    worker_memory: float | None = _setting(
+        "execution", None, "GiB of memory a job's process may allocate (its data segment, RLIMIT_DATA); an "
+        "allocation past it fails that job with 'out of memory' and the run goes on (default: no limit: a job "
+        "over the machine's memory is killed by the kernel and recorded as a worker killed by SIGKILL)",
+        kind=float, gt=0)
     retries: int = _setting(
         "execution", 1, "times a job whose worker died is retried (default 1); jobs that raise are recorded "
         "failed at once", ge=0)

@@ -53,6 +53,7 @@ class TaskSpec:
     threads: int | None = None
     max_faces: int | None = None
     max_points: int | None = None
+    worker_memory: float | None = None
 
     kind = "task"
     uses_fitting = False
@@ -158,7 +159,8 @@ def build_tasks(plan) -> tuple[list[FloorSpec], list[JobSpec]]:
 
     c = plan.config
     common = dict(dataset=c.dataset, dataset_options=plan.dataset_options, metric_preset=c.metric_preset,
-                  plugins=c.plugins, threads=c.threads, max_faces=c.max_faces, max_points=c.max_points)
+                  plugins=c.plugins, threads=c.threads, max_faces=c.max_faces, max_points=c.max_points,
+                  worker_memory=c.worker_memory)
     cache_dir = None if c.no_cache else str(cache_root_of(c))
     floors: dict[str, FloorSpec] = {}
     jobs: dict[str, JobSpec] = {}

@@ -166,6 +166,36 @@ def test_a_worker_killed_like_the_oom_killer_does_is_a_failed_job_saying_so():
     assert "\n" not in str(got[1])
 
 
+@pytest.mark.slow
+def test_a_job_past_the_worker_memory_limit_fails_saying_so_and_the_run_goes_on(tmp_path):
+    """A generated 2.9M-face torus (under --max-faces) and a box, one process worker capped at 1 GiB:
+    the torus's tasks fail with 'out of memory' in their rows, the box's are ok, the worker lives on."""
+    import trimesh
+
+    n = 1200  # an n x n torus grid: 2 n^2 triangles; its load alone needs more than the limit
+    u, v = np.meshgrid(np.linspace(0, 2 * np.pi, n, endpoint=False), np.linspace(0, 2 * np.pi, n, endpoint=False),
+                       indexing="ij")
+    vertices = np.stack([(1 + 0.35 * np.cos(v)) * np.cos(u), (1 + 0.35 * np.cos(v)) * np.sin(u), 0.35 * np.sin(v)],
+                        -1).reshape(-1, 3)
+    i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    a, b, c, d = i * n + j, (i + 1) % n * n + j, (i + 1) % n * n + (j + 1) % n, i * n + (j + 1) % n
+    faces = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
+    meshes = tmp_path / "meshes"
+    meshes.mkdir()
+    trimesh.Trimesh(vertices, faces, process=False).export(meshes / "torus.ply")
+    trimesh.creation.box().export(meshes / "box.ply")
+    out = tmp_path / "run"
+    code = main(["--methods", "sdf", "--mode", "oracle", "--dataset", "meshes", "--data-dir", str(meshes),
+                 "--grid", "24", "--eval-points", "5000", "--out", str(out), "--no-cache", "--quiet", "--gallery", "0",
+                 "--executor", "process", "--workers", "1", "--worker-memory", "1"])
+    assert code == EXIT_FAILED_TASKS
+    jobs = pd.read_csv(out / "results.csv").set_index("shape")
+    assert jobs.loc["box", "status"] == "ok" and jobs.loc["torus", "status"] == "failed"
+    assert jobs.loc["torus", "error"].startswith("loading: out of memory (past the limit of --worker-memory 1 GiB): "
+                                                 "MemoryError")
+    assert "worker process died" not in jobs.loc["torus", "error"]  # the job failed; its worker did not die
+
+
 # ---------------------------------------------------------------------------------------------
 # the real pipeline: local vs process vs ray on 2 shapes x 2 methods + a corrupt mesh file
 # ---------------------------------------------------------------------------------------------
