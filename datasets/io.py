@@ -88,6 +88,8 @@ class Shape:
         :data:`NO_GT` for a point cloud without a GT mesh.
     points : (p, 3) float64 input point cloud in the same canonical frame, for datasets of point-cloud
         files (the reconstruct task then uses it instead of sampling the mesh); None otherwise.
+    sensors : (p, 3) float64, the position of the sensor that saw each of ``points`` (same frame),
+        when the cloud file carries them (a scan); None otherwise.
 
     A shape without faces has no GT (:attr:`has_gt`): a point cloud given without a mesh, in the
     canonical frame of its own points; it can be reconstructed but not scored.
@@ -101,6 +103,7 @@ class Shape:
     kind: str = "closed"
     meta: dict = field(default_factory=dict)
     points: np.ndarray | None = None
+    sensors: np.ndarray | None = None
 
     @property
     def has_gt(self) -> bool:
@@ -114,11 +117,13 @@ class Shape:
     @property
     def content_hash(self) -> str:
         """SHA-256 (hex, 16 chars) of the canonical vertex and face arrays (and the input cloud, if
-        any): the cache key."""
+        any, and its sensors, if any): the cache key."""
         if self.points is None:
             return mesh_hash(self.vertices, self.faces)
-        both = hashlib.sha256((mesh_hash(self.vertices, self.faces) + mesh_hash(self.points, np.zeros((0, 3)))).encode())
-        return both.hexdigest()[:16]
+        parts = mesh_hash(self.vertices, self.faces) + mesh_hash(self.points, np.zeros((0, 3)))
+        if self.sensors is not None:
+            parts += mesh_hash(self.sensors, np.zeros((0, 3)))
+        return hashlib.sha256(parts.encode()).hexdigest()[:16]
 
 
 def canonical_transform(vertices: np.ndarray) -> Normalization:

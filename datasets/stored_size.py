@@ -6,7 +6,7 @@ with :func:`stored_count` first, so a file over a limit is refused without alloc
 * PLY: the ``element face`` / ``element vertex`` counts of its header;
 * OFF: the counts line of its header;
 * binary STL: the triangle count of its 84-byte header;
-* NPY: the first dimension of the array shape in its header;
+* NPY, NPZ (its ``points`` array): the first dimension of the array shape in its header;
 * OBJ, ASCII STL, XYZ: lines counted in a stream of 16 MiB chunks (memory bounded by the chunk,
   time linear in the file): OBJ lines that start with ``f`` (faces) or ``v`` (points), ASCII STL
   ``vertex`` keywords / 3, XYZ lines (comments included: an upper bound);
@@ -48,6 +48,8 @@ def stored_count(path: str | os.PathLike, what: str) -> int | None:
             return _stl_count(path) if what == "faces" else None
         if suffix == ".npy":
             return _npy_count(path) if what == "points" else None
+        if suffix == ".npz":
+            return _npz_count(path) if what == "points" else None
         if suffix == ".obj":
             return count_line_starts(path, (b"f ", b"f\t") if what == "faces" else (b"v ", b"v\t"))
         if suffix == ".xyz":
@@ -126,10 +128,25 @@ def _stl_count(path: Path) -> int | None:
 
 
 def _npy_count(path: Path) -> int | None:
+    with open(path, "rb") as f:
+        return _npy_rows(f)
+
+
+def _npz_count(path: Path) -> int | None:
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as archive, archive.open("points.npy") as f:
+            return _npy_rows(f)
+    except (zipfile.BadZipFile, KeyError):
+        return None
+
+
+def _npy_rows(f) -> int:
+    """The first dimension of the array whose .npy header ``f`` is at (1 for a scalar)."""
     from numpy.lib import format as npy
 
-    with open(path, "rb") as f:
-        version = npy.read_magic(f)
-        read_header = npy.read_array_header_1_0 if version == (1, 0) else npy.read_array_header_2_0
-        shape, _, _ = read_header(f)
+    version = npy.read_magic(f)
+    read_header = npy.read_array_header_1_0 if version == (1, 0) else npy.read_array_header_2_0
+    shape, _, _ = read_header(f)
     return int(shape[0]) if shape else 1

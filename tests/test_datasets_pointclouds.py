@@ -20,7 +20,7 @@ from hypothesis.extra.numpy import array_shapes, arrays, scalar_dtypes
 from runner.cli import EXIT_REFUSED, main
 from datasets import MeshError, get_dataset
 from datasets.io import NO_GT
-from datasets.pointclouds import read_point_cloud
+from datasets.pointclouds import read_point_cloud, read_scan, write_point_cloud
 from tests.conftest import FAST_EXAMPLES
 from tests.loader_fuzz import COUNTS, FLOATS, loads_or_refuses, mutated, truncations
 
@@ -50,6 +50,34 @@ def test_a_cloud_loads_in_the_canonical_frame_of_its_gt(folder):
         assert np.allclose(s.vertices.min(axis=0), [-0.995, -0.4975, -0.24875])
     assert np.allclose(shapes[0].points, shapes[1].points)
     assert np.allclose(np.sort(shapes[0].points, axis=0), np.sort(shapes[2].points, axis=0), atol=1e-6)
+
+
+@pytest.mark.parametrize("extension", [".ply", ".npz"])
+def test_a_scan_with_its_sensors_reads_back_bit_for_bit_and_moves_with_the_gt(folder, extension):
+    path, points = folder
+    sensors = points + np.random.default_rng(1).normal(size=points.shape)
+    write_point_cloud(path / f"scan{extension}", points, sensors)
+    (path / "scan.gt.ply").write_bytes((path / "box.gt.ply").read_bytes())
+    got_points, got_sensors = read_scan(path / f"scan{extension}")
+    assert np.array_equal(got_points, points) and np.array_equal(got_sensors, sensors)
+    shape = get_dataset("pointclouds", data_dir=path).load("scan")
+    assert np.array_equal(shape.sensors, shape.transform.apply(sensors))  # the GT's canonical frame, as the points
+    assert shape.content_hash != get_dataset("pointclouds", data_dir=path).load("box").content_hash
+    assert get_dataset("pointclouds", data_dir=path).load("box").sensors is None  # a file without sensors
+
+
+def test_sensors_must_match_the_points_and_only_ply_and_npz_hold_them(tmp_path):
+    points = np.random.default_rng(0).random((150, 3))
+    np.savez(tmp_path / "short.npz", points=points, sensor_position=points[:10])
+    with pytest.raises(MeshError, match=r"short.npz: \(10, 3\) sensor positions for 150 points"):
+        read_scan(tmp_path / "short.npz")
+    np.savez(tmp_path / "none.npz", xyz=points)
+    with pytest.raises(MeshError, match=r"none.npz: has no array 'points' \(arrays: xyz\)"):
+        read_scan(tmp_path / "none.npz")
+    with pytest.raises(ValueError, match="a .xyz file holds no sensor positions; write .ply or .npz"):
+        write_point_cloud(tmp_path / "c.xyz", points, points)
+    write_point_cloud(tmp_path / "c.xyz", points)
+    assert np.array_equal(read_point_cloud(tmp_path / "c.xyz"), points)  # %.17g: exact
 
 
 @pytest.mark.parametrize("name, content, message", [
@@ -139,9 +167,21 @@ def cloud_files(points) -> dict[str, tuple[str, bytes]]:
     np.save(npy, points)
     xyz = "# a cloud\n" + "".join(" ".join(map(repr, map(float, p))) + " 0 0 1\n" for p in points)  # + normals
     cloud = trimesh.PointCloud(np.asarray(points, dtype=np.float64))
+    sensors = np.asarray(points, dtype=np.float64) * 3.0
     return {"xyz": (".xyz", xyz.encode()), "npy": (".npy", npy.getvalue()),
             "ply_ascii": (".ply", cloud.export(file_type="ply", encoding="ascii")),
-            "ply_binary": (".ply", cloud.export(file_type="ply"))}
+            "ply_binary": (".ply", cloud.export(file_type="ply")),
+            "ply_scan": (".ply", _written(".ply", points, sensors)), "npz_scan": (".npz", _written(".npz", points, sensors))}
+
+
+def _written(extension: str, points, sensors) -> bytes:
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / f"cloud{extension}"
+        write_point_cloud(path, points, sensors)
+        return path.read_bytes()
 
 
 VALID_CLOUDS = cloud_files(CLOUD)
@@ -180,11 +220,11 @@ def _write_bytes(path, data):
     return path
 
 
-CLOUD_MAGIC = st.sampled_from([b"", b"\x93NUMPY\x01\x00", b"\x93NUMPY\x02\x00", b"ply\nformat ascii 1.0\n", b"0 0 0\n",
+CLOUD_MAGIC = st.sampled_from([b"", b"PK\x03\x04", b"\x93NUMPY\x01\x00", b"\x93NUMPY\x02\x00", b"ply\nformat ascii 1.0\n", b"0 0 0\n",
                                b"ply\nformat binary_little_endian 1.0\nelement vertex 100\n"])
 
 
-@given(extension=st.sampled_from([".xyz", ".npy", ".ply"]),
+@given(extension=st.sampled_from([".xyz", ".npy", ".ply", ".npz"]),
        data=st.tuples(CLOUD_MAGIC, st.binary(max_size=600)).map(b"".join))
 def test_any_bytes_give_a_cloud_or_one_mesh_error_line(cloud_dir, extension, data):
     """Random bytes, alone or after the start of a header, under every cloud extension."""

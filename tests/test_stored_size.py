@@ -74,3 +74,10 @@ def test_unknown_or_unreadable_headers_give_none(tmp_path):
         assert stored_count(tmp_path / name, "faces") is None
     with pytest.raises(ValueError, match="what must be 'faces' or 'points'"):
         stored_count(tmp_path / "a.ply", "edges")
+
+
+def test_an_npz_cloud_gives_the_rows_of_its_points_array(tmp_path):
+    np.savez(tmp_path / "s.npz", points=np.zeros((321, 3)), sensor_position=np.ones((321, 3)))
+    np.savez(tmp_path / "t.npz", other=np.zeros((5, 3)))
+    assert stored_count(tmp_path / "s.npz", "points") == 321
+    assert stored_count(tmp_path / "t.npz", "points") is None
