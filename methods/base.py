@@ -256,6 +256,10 @@ class PointCloudMethod(Method):
     task: ClassVar[str] = "reconstruct"
     input_kind: ClassVar[str] = "points"
     budget_family: ClassVar[str | None] = None
+    #: Whether :meth:`reconstruct` takes ``sensors=`` ((P, 3) float64: the position, canonical frame,
+    #: of the sensor that saw each point) and uses it. The job passes it only when the input cloud
+    #: carries sensors (a scan), and records in the job's row whether it did (``used_sensors``).
+    uses_sensors: ClassVar[bool] = False
 
     def checked_points(self, points) -> np.ndarray:
         """``points`` as a float64 (P, 3) array with P >= 1; otherwise a ValueError naming the method."""
@@ -269,7 +273,8 @@ class PointCloudMethod(Method):
     def reconstruct(self, points: np.ndarray, N: int, device=None, seed: int = 0) -> Extraction:
         """A mesh (canonical frame) from ``points`` (P, 3) float64 in the canonical frame; ``N`` is
         the run's grid resolution (methods with their own resolution rule derive it from N); ``seed``
-        is the job's seed (a method that optimises or draws anything per shape seeds it from it)."""
+        is the job's seed (a method that optimises or draws anything per shape seeds it from it). A
+        method with ``uses_sensors`` also accepts ``sensors=None``: (P, 3) sensor positions."""
         raise NotImplementedError
 
 

@@ -7,15 +7,25 @@ import numpy as np
 from benchmark.timing import stage
 
 
-def oriented_point_set(points: np.ndarray, k: int):
-    """A pymeshlab MeshSet holding ``points`` with PCA normals over their ``k`` nearest neighbours,
-    oriented by MeshLab (``compute_normal_for_point_clouds``); timed as the ``normals`` sub-stage."""
+def oriented_point_set(points: np.ndarray, k: int, sensors: np.ndarray | None = None):
+    """A pymeshlab MeshSet holding ``points`` with PCA normals over their ``k`` nearest neighbours
+    (``compute_normal_for_point_clouds``), oriented by MeshLab's propagation, or, given ``sensors``
+    ((P, 3): the position of the sensor that saw each point), each flipped to face its sensor
+    (``dot(n, sensor - p) >= 0``: a scanned point is seen from outside). Timed as the ``normals``
+    sub-stage."""
     import pymeshlab
 
+    points = np.asarray(points, dtype=np.float64)
     ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=np.asarray(points, dtype=np.float64)))
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=points))
     with stage("normals"):
         ms.compute_normal_for_point_clouds(k=k, smoothiter=0)
+        if sensors is not None:
+            normals = np.asarray(ms.current_mesh().vertex_normal_matrix(), dtype=np.float64)
+            away = np.einsum("ij,ij->i", normals, np.asarray(sensors, dtype=np.float64) - points) < 0
+            normals[away] *= -1
+            ms = pymeshlab.MeshSet()
+            ms.add_mesh(pymeshlab.Mesh(vertex_matrix=points, v_normals_matrix=normals))
     return ms
 
 

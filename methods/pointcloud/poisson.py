@@ -4,7 +4,8 @@ classic non-learned baseline of point-cloud reconstruction (``reconstruct`` task
 Steps, all pymeshlab (MeshLab's filters), on the raw points (no normals given):
 
 1. normals: ``compute_normal_for_point_clouds`` (PCA over the ``normal_k`` nearest points, oriented
-   by MeshLab's propagation), stage ``reconstruct_normals``;
+   by MeshLab's propagation, or toward each point's sensor when the input is a scan that carries
+   them), stage ``reconstruct_normals``;
 2. ``generate_surface_reconstruction_screened_poisson`` at octree depth ``depth`` (0: log2 of the
    run's grid, rounded, so grid 128 -> depth 7 -> a 128^3 finest octree level, the resolution the
    grid methods get), point weight ``point_weight`` (screening), stage ``reconstruct_poisson``;
@@ -35,6 +36,7 @@ class PoissonMethod(PointCloudMethod):
     name = "poisson"
     description = "screened Poisson reconstruction (pymeshlab) with PCA normals and density trimming"
     extractor = "screened Poisson"
+    uses_sensors = True
     parameters = {
         "depth": Param(0, "octree depth (0: round(log2 grid))", ge=0),
         "point_weight": Param(4.0, "screening weight of the points (pymeshlab's default)", ge=0),
@@ -43,8 +45,9 @@ class PoissonMethod(PointCloudMethod):
                             ge=0),
     }
 
-    def reconstruct(self, points: np.ndarray, N: int, device=None, seed: int = 0) -> Extraction:
-        ms = oriented_point_set(points, self.params["normal_k"])
+    def reconstruct(self, points: np.ndarray, N: int, device=None, seed: int = 0,
+                    sensors: np.ndarray | None = None) -> Extraction:
+        ms = oriented_point_set(points, self.params["normal_k"], sensors)
         depth = self.params["depth"] or poisson_depth(N)
         with stage("poisson"):
             ms.generate_surface_reconstruction_screened_poisson(depth=depth, pointweight=self.params["point_weight"],
