@@ -4,7 +4,8 @@ Public API
 ----------
 write_reports(results, floor, context, out_dir, meshes_dir=None) -> {name: Path}
     summary.md, summary.tex, statistics.csv, timing.csv, timing.md and report.html in ``out_dir``;
-    for a sweep run (``context['sweep']``) also sweep.md, sweep.tex and sweep.csv.
+    for a sweep run (``context['sweep']``) also sweep.md, sweep.tex and sweep.csv, and for a sweep of
+    ``pc_corruption`` robustness.md and robustness.csv.
 compare_runs(runs, out_dir) -> {name: Path}
     The same files for several runs side by side; ``runs`` is a list of dicts with keys name,
     results, floor, context, meshes_dir.
@@ -18,6 +19,7 @@ Modules: ``table`` (table model, Markdown/LaTeX writers), ``frames`` (input chec
 (context, preset text), ``style`` (method order and colours), ``statistics`` (per-method
 statistics and their table), ``significance`` (bootstrap intervals, paired tests, the tie rule),
 ``summary`` (the run's tables, summary.md/.tex), ``sweep`` (a sweep run's tables and plots),
+``robustness`` (a sweep of input corruptions: a table per kind, a plot per metric),
 ``timing``, ``compare`` (several runs), ``plots``, ``render`` (thumbnails), ``html`` (report.html).
 """
 
@@ -32,6 +34,7 @@ from reports.frames import check_results
 from reports.html import GALLERY_LIMIT, write_comparison_html, write_html
 from reports.protocol import check_context
 from reports.render import render_mesh
+from reports.robustness import build_robustness, robustness_html, write_robustness
 from reports.summary import build_summary, write_summary
 from reports.sweep import build_sweep, run_mode_results, sweep_html, write_sweep
 from reports.timing import write_timing
@@ -60,12 +63,15 @@ def write_reports(results: pd.DataFrame, floor: pd.DataFrame | None, context: di
     summary = build_summary(run_mode_results(results, context), floor, context, components)
     paths = write_summary(summary, context, out_dir)
     paths.update(write_sweep(sweep, context, out_dir) if sweep is not None else {})
+    robustness = build_robustness(results, context)
+    paths.update(write_robustness(robustness, context, out_dir) if robustness is not None else {})
     timing_paths, timing = write_timing(summary.results, context, out_dir)
     paths.update(timing_paths)
     paths["report.html"] = write_html(out_dir / "report.html", summary, timing, context,
                                       Path(meshes_dir) if meshes_dir is not None else None,
                                       gallery_limit=gallery_limit, checkpoints=checkpoints,
-                                      sweep_html=sweep_html(sweep) if sweep is not None else "")
+                                      sweep_html=sweep_html(sweep) if sweep is not None else "",
+                                      robustness_html=robustness_html(robustness) if robustness is not None else "")
     return paths
 
 

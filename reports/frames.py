@@ -94,3 +94,15 @@ def one_line(text) -> str:
     if text is None or (isinstance(text, float) and not np.isfinite(text)):
         return "(no error text recorded)"
     return " ".join(str(text).split())
+
+
+def sensors_note(results: pd.DataFrame) -> str | None:
+    """Which methods were given each input point's sensor position (``used_sensors``: the input was a
+    scan and the method uses sensors), in one sentence; None when none was."""
+    if "used_sensors" not in results.columns:
+        return None
+    used = list(dict.fromkeys(results.loc[as_bool(results["used_sensors"]), "method"]))
+    if not used:
+        return None
+    return (f"Given each input point's sensor position (a scan): {', '.join(used)}; every other method got the "
+            "points alone.")

@@ -299,9 +299,10 @@ def _page(title: str, subtitle: str, chips: list[tuple[str, str]], sections: lis
 
 def write_html(path: Path, summary: Summary, timing: pd.DataFrame, context: dict, meshes_dir: Path | None = None,
                *, gallery_limit: int = GALLERY_LIMIT, thumb_size: int = 256,
-               checkpoints: pd.DataFrame | None = None, sweep_html: str = "") -> Path:
-    """Write report.html for one run (see the module docstring); returns ``path``. ``sweep_html``
-    (:func:`reports.sweep.sweep_html`), when given, is the first section."""
+               checkpoints: pd.DataFrame | None = None, sweep_html: str = "", robustness_html: str = "") -> Path:
+    """Write report.html for one run (see the module docstring); returns ``path``. ``robustness_html``
+    (:func:`reports.robustness.robustness_html`) and ``sweep_html`` (:func:`reports.sweep.sweep_html`),
+    when given, are the first sections."""
     results = summary.results
     colors = method_colors(summary.methods)
     n_jobs, n_failed = len(results), int((results["status"] != "ok").sum())
@@ -322,6 +323,7 @@ def write_html(path: Path, summary: Summary, timing: pd.DataFrame, context: dict
     context_html = ('<details><summary>Run context</summary><pre>'
                     + esc(dumps(context, indent=2)) + "</pre></details>")
     sections = [
+        *([("robustness", "Robustness to input corruptions", robustness_html)] if robustness_html else []),
         *([("sweep", "Sweep", sweep_html)] if sweep_html else []),
         ("summary", "Summary", summary_html),
         ("gallery", "Gallery", gallery),

@@ -20,7 +20,8 @@ import pandas as pd
 
 from benchmark.schema import columns as schema_columns
 from reports.decomposition import decomposition_tables
-from reports.frames import as_bool, check_floor, check_results, numeric, ok_jobs, one_line, unscored_jobs, without_unscored
+from reports.frames import (as_bool, check_floor, check_results, numeric, ok_jobs, one_line, sensors_note, unscored_jobs,
+                            without_unscored)
 from reports.protocol import check_context, headline_metrics, protocol_caption, report_title
 from reports.statistics import AGGREGATION, Statistics, method_statistics, statistic_table, statistics_frame
 from reports.style import method_order
@@ -193,7 +194,7 @@ def build_summary(results: pd.DataFrame, floor: pd.DataFrame | None, context: di
     tables = {stat: statistic_table(stats, metrics, stat, key=stat, caption=stat_caption)
               for stat in ("mean", "median", "std")}
     tables["validity"] = validity_table(results, floor, methods, caption)
-    tables["mean"].notes += [AGGREGATION, FLOOR_NOTE]
+    tables["mean"].notes += [AGGREGATION, FLOOR_NOTE] + [n for n in [sensors_note(results)] if n]
     tables["std"].notes.append("Sample standard deviation (ddof = 1) over successful jobs; – with fewer than 2.")
     scored_shapes = [s for s in shapes if s in set(rows["shape"])]
     for m in metrics:

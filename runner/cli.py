@@ -76,6 +76,7 @@ def build_parser() -> argparse.ArgumentParser:
     setting("task", choices=settings["task"].choices)
     setting("pc_points", metavar="P")
     setting("pc_noise", metavar="SIGMA")
+    setting("pc_corruption", metavar="NAME")
     setting("train_dirs", action="append", metavar="DIR")
     setting("methods", nargs="+", metavar="METHOD")
     setting("dataset", metavar="NAME")
@@ -286,6 +287,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return report_main(argv[1:])
     if argv and argv[0] == "train":
         return train_main(argv[1:])
+    if argv and argv[0] == "clouds":
+        return clouds_main(argv[1:])
     args = build_parser().parse_args(argv)
     try:
         out = out_dir_of(args)
@@ -304,6 +307,36 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"run_benchmark.py: error: {exc}", file=sys.stderr)
         return EXIT_REFUSED
     return EXIT_OK if outcome.failed == 0 else EXIT_FAILED_TASKS
+
+
+def clouds_main(argv: Sequence[str]) -> int:
+    """``run_benchmark.py clouds --task reconstruct --out DIR [--cloud-format ply|npz] [run settings]``:
+    write the input clouds a run with these settings gives its methods (:mod:`runner.clouds`)."""
+    from runner.clouds import FORMATS, export_clouds
+
+    argv = list(argv)
+    fmt = "ply"
+    if "--cloud-format" in argv:
+        at = argv.index("--cloud-format")
+        fmt = argv[at + 1] if at + 1 < len(argv) else ""
+        del argv[at:at + 2]
+    args = build_parser().parse_args(argv)
+    try:
+        if fmt not in FORMATS:
+            raise ConfigError(f"--cloud-format must be one of {', '.join(FORMATS)}, got {fmt!r}")
+        if not args.out or args.resume:
+            raise ConfigError("clouds writes its files under --out DIR (and continues no run: --resume does not apply)")
+        plan = resolve(configure(args, None))
+        if plan.config.task != "reconstruct":
+            raise ConfigError("clouds writes the inputs of --task reconstruct")
+        out = check_writable_dir(Path(args.out), "--out")
+    except ConfigError as exc:
+        print(f"run_benchmark.py: error: {exc}", file=sys.stderr)
+        return EXIT_REFUSED
+    quiet = plan.config.quiet
+    folders = export_clouds(plan, out, fmt, progress=None if quiet else print)
+    print(f"salsbench: input clouds of {len(plan.shapes)} shape(s) in {', '.join(map(str, folders))}")
+    return EXIT_OK
 
 
 def train_main(argv: Sequence[str]) -> int:

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
+from benchmark.corruptions import CORRUPTIONS
 from benchmark.params import Param, ParamError, check_fields, params_of, setting
 from benchmark.seeding import MAX_SEED
 
@@ -119,6 +120,11 @@ class RunConfig:
     pc_noise: float = _setting(
         "identity", 0.0, "reconstruct task: Gaussian noise sigma added to the input points, canonical units "
         "(default 0)", sweep="pc_noise", ge=0, lt=1)
+    pc_corruption: str = _setting(
+        "identity", "uniform", "reconstruct task: how the input cloud is made: uniform (default: area-uniform "
+        "samples, the paper's), scan (a clean virtual range scan: 10 sensors, per-point sensor positions), or a "
+        "scan corrupted at level 1-3: noise-L, outliers-L, missing-L, density-L, misalign-L (docs/PROTOCOL.md, "
+        "'Input clouds')", sweep="pc_corruption", choices=CORRUPTIONS)
     train_dirs: tuple[str, ...] | None = _setting(
         "identity", None, "reconstruct task: a folder of extra training meshes for the learned methods (repeatable; "
         "default: ../shared/data/thingi10k where it exists); the built-in training parts are always included",
@@ -231,8 +237,12 @@ class RunConfig:
         if self.pc_points > self.max_points:
             raise ConfigError(f"--pc-points {self.pc_points} is over the limit of {self.max_points} points a job "
                               f"may hold (--max-points)")
-        if self.task == "encode" and (self.pc_points != DEFAULT_PC_POINTS or self.pc_noise != 0):
-            raise ConfigError("--pc-points and --pc-noise apply to --task reconstruct")
+        if self.task == "encode" and (self.pc_points != DEFAULT_PC_POINTS or self.pc_noise != 0
+                                      or self.pc_corruption != "uniform"):
+            raise ConfigError("--pc-points, --pc-noise and --pc-corruption apply to --task reconstruct")
+        if self.pc_noise != 0 and (self.pc_corruption != "uniform" or "pc_corruption" in self.sweep):
+            raise ConfigError("--pc-noise adds Gaussian noise to uniform samples; for a scan use --pc-corruption "
+                              "noise-1, noise-2 or noise-3 (noise along the sensor's rays)")
         if self.task == "reconstruct" and (self.mode != "neural" or self.checkpoints):
             raise ConfigError("--mode oracle and --checkpoints apply to --task encode")
         if self.decompose and (self.mode != "neural" or self.task != "encode"):

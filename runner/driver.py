@@ -64,7 +64,8 @@ def record_result(db: ResultsDB, run_dir: RunDirectory, result: TaskResult, firs
         "params": spec.params, "budget": spec.budget, "grid": spec.grid, "fit_loss": result.fit_loss,
         "attempts": result.attempts, "cache": ",".join(result.cache) or None,
         "cache_rejected": len(result.cache_rejected), "device": result.device, "host": result.host,
-        "versions": result.versions, "info": result.info, "started": result.started, **common,
+        "versions": result.versions, "info": result.info, "started": result.started,
+        "used_sensors": result.info.get("used_sensors"), **common,
     }, result.metrics, result.timings, sweep=spec.sweep, fitted=int(bool(result.info.get("fitted"))))
 
 

@@ -12,7 +12,7 @@ oracle mode: ``query`` (``method.oracle_grid`` on the exact fields); then ``extr
 (``method.extract``) and ``metrics`` (``benchmark.metrics.evaluate`` against the GT). A job of the
 ``reconstruct`` task: ``load``, for a learned method ``network`` (its network, trained once across
 shapes or loaded: :mod:`runner.training`), ``sample`` (the input point cloud,
-:func:`input_point_cloud`), ``reconstruct`` (``PointCloudMethod.reconstruct``), ``metrics``. Randomness comes from
+:func:`input_point_cloud`, with its sensors for a method that uses them), ``reconstruct`` (``PointCloudMethod.reconstruct``), ``metrics``. Randomness comes from
 :func:`benchmark.seeding.job_streams` of (shape content hash, seed).
 """
 
@@ -393,22 +393,26 @@ def _floor_body(spec: FloorSpec, shape, device, timer: StageTimer, result: TaskR
            result, report)
 
 
-def input_point_cloud(shape, n: int, noise: float, seed: int) -> np.ndarray:
-    """The reconstruct task's input: the shape's own cloud (a dataset of point-cloud files), else
-    ``n`` area-uniform points of the GT surface (the shared surface sampler on the job's sampler
-    stream: the same cloud for every method of a (shape, seed)); plus Gaussian noise of sigma
-    ``noise`` (canonical units) from the same stream; no normals."""
+def input_point_cloud(shape, n: int, noise: float, seed: int,
+                      corruption: str = "uniform") -> tuple[np.ndarray, np.ndarray | None]:
+    """(points (P, 3), sensors (P, 3) or None): the reconstruct task's input. The shape's own cloud
+    and sensors (a dataset of point-cloud files), else ``n`` points of the GT surface made as
+    ``corruption`` names (:func:`benchmark.corruptions.input_cloud`: ``uniform`` area-uniform
+    samples, ``scan`` and its corruptions a virtual range scan with a sensor per point), on the
+    job's sampler stream (the same cloud for every method of a (shape, seed, corruption)); plus
+    Gaussian noise of sigma ``noise`` (canonical units) from the same stream; no normals."""
+    from benchmark.corruptions import input_cloud
     from benchmark.seeding import job_streams
-    from benchmark.surface import sample_surface
 
     rng = job_streams(shape.content_hash, seed).sampler_rng()
     if shape.points is not None:
-        points = np.asarray(shape.points, dtype=np.float64)
+        points, sensors = np.asarray(shape.points, dtype=np.float64), shape.sensors
     else:
-        points, _ = sample_surface(shape.vertices, shape.faces, n, rng)
+        cloud = input_cloud(shape.vertices, shape.faces, n, corruption, rng)
+        points, sensors = cloud.points, cloud.sensors
     if noise > 0:
         points = points + rng.normal(scale=noise, size=points.shape)
-    return np.asarray(points, dtype=np.float64)
+    return np.asarray(points, dtype=np.float64), sensors
 
 
 def _reconstruct_body(spec: JobSpec, shape, device, timer: StageTimer, result: TaskResult, report: _Progress) -> None:
@@ -437,8 +441,11 @@ def _reconstruct_body(spec: JobSpec, shape, device, timer: StageTimer, result: T
         result.cache, result.cache_rejected = list(stats.hits), list(stats.rejected)
     report("sampling")
     with stage("sample"):
-        points = input_point_cloud(shape, spec.pc_points, spec.pc_noise, spec.seed)
+        points, sensors = input_point_cloud(shape, spec.pc_points, spec.pc_noise, spec.seed, spec.pc_corruption)
     result.info["input_points"] = int(len(points))
+    if method.uses_sensors and sensors is not None:
+        network["sensors"] = sensors
+    result.info["used_sensors"] = "sensors" in network
     report("reconstructing")
     with stage("reconstruct"):
         extraction = method.reconstruct(points, spec.grid, device, seed=spec.seed, **network)

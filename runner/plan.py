@@ -139,6 +139,9 @@ def resolve(config: RunConfig) -> Plan:
             raise ConfigError(f"dataset '{config.dataset}' holds point clouds: use --task reconstruct")
         if config.pc_points != DEFAULT_PC_POINTS:
             raise ConfigError(f"--pc-points does not apply to dataset '{config.dataset}': its files give the points")
+        if config.pc_corruption != "uniform" or "pc_corruption" in config.sweep:
+            raise ConfigError(f"--pc-corruption does not apply to dataset '{config.dataset}': its files are the "
+                              f"clouds (a scan file carries its own sensors)")
     n = config.eval_points if config.eval_points is not None else preset.n_points
     sweep, variants = _variants(config, methods)
     learned = any(METHODS.get(m).learned for m in methods)

@@ -106,6 +106,7 @@ class JobSpec(TaskSpec):
     task: str = "encode"
     pc_points: int | None = None
     pc_noise: float | None = None
+    pc_corruption: str = "uniform"
     train_dirs: tuple[str, ...] = ()
 
     kind = "job"
@@ -119,6 +120,8 @@ class JobSpec(TaskSpec):
             ident["decompose"] = True
         if self.task != "encode":  # likewise: an encode job's key holds no reconstruct field
             ident.update(task=self.task, pc_points=self.pc_points, pc_noise=self.pc_noise)
+            if self.pc_corruption != "uniform":  # likewise: a job on uniform samples keeps its key
+                ident["pc_corruption"] = self.pc_corruption
             if self.budget is not None:  # a learned method: its training set is part of what it computes
                 ident["train_dirs"] = list(self.train_dirs)
         return ident
@@ -168,7 +171,8 @@ def build_tasks(plan) -> tuple[list[FloorSpec], list[JobSpec]]:
         for v in plan.variants:
             vc = v.config
             floor = FloorSpec(shape=s, seed=c.seeds[0], eval_points=vc.eval_points, **common)
-            reconstruct = {"pc_points": vc.pc_points, "pc_noise": vc.pc_noise} if vc.task == "reconstruct" else {}
+            reconstruct = ({"pc_points": vc.pc_points, "pc_noise": vc.pc_noise, "pc_corruption": vc.pc_corruption}
+                           if vc.task == "reconstruct" else {})
             floors.setdefault(floor.key, floor)
             for m in plan.methods:
                 values = v.applicable(m)

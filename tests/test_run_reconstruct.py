@@ -21,13 +21,37 @@ def shape():
 def test_the_input_cloud_is_seeded_on_the_surface_and_noised_as_asked(shape):
     from benchmark.fields import ExactFields
 
-    a, b = input_point_cloud(shape, 5000, 0.0, seed=0), input_point_cloud(shape, 5000, 0.0, seed=0)
-    assert a.shape == (5000, 3) and np.array_equal(a, b)
-    assert not np.array_equal(a, input_point_cloud(shape, 5000, 0.0, seed=1))
+    (a, sensors), (b, _) = input_point_cloud(shape, 5000, 0.0, seed=0), input_point_cloud(shape, 5000, 0.0, seed=0)
+    assert a.shape == (5000, 3) and np.array_equal(a, b) and sensors is None  # uniform samples carry no sensors
+    assert not np.array_equal(a, input_point_cloud(shape, 5000, 0.0, seed=1)[0])
     fields = ExactFields(shape.vertices, shape.faces)
     assert fields.udf(a).max() < 1e-6  # on the GT surface
-    noisy = input_point_cloud(shape, 5000, 0.01, seed=0)
+    noisy, _ = input_point_cloud(shape, 5000, 0.01, seed=0)
     assert np.std(noisy - a) == pytest.approx(0.01, rel=0.05)  # the clean cloud plus N(0, sigma^2) per axis
+
+
+def test_a_scan_input_is_on_the_surface_with_a_sensor_per_point_and_the_same_for_every_method(shape):
+    from benchmark.corruptions import input_cloud
+    from benchmark.fields import ExactFields
+    from benchmark.seeding import job_streams
+
+    points, sensors = input_point_cloud(shape, 5000, 0.0, seed=0, corruption="scan")
+    assert points.shape == sensors.shape == (5000, 3)
+    assert ExactFields(shape.vertices, shape.faces).udf(points).max() < 1e-9
+    assert np.allclose(np.linalg.norm(sensors, axis=1), 3.0, rtol=1e-2)  # 10 sensors 3 units from the centre
+    again = input_cloud(shape.vertices, shape.faces, 5000, "scan", job_streams(shape.content_hash, 0).sampler_rng())
+    assert np.array_equal(points, again.points)  # the job's sampler stream: what any method of the job gets
+
+
+def test_a_scan_run_gives_poisson_its_sensors_and_says_so(tmp_path):
+    out = tmp_path / "run"
+    code = main(["--task", "reconstruct", "--methods", "poisson", "--limit", "1", "--grid", "32", "--pc-points",
+                 "5000", "--eval-points", "5000", "--out", str(out), "--quiet", "--cache-dir", str(tmp_path / "c"),
+                 "--pc-corruption", "scan", "--executor", "local"])
+    assert code == 0
+    df = pd.read_csv(out / "results.csv")
+    assert list(df.used_sensors) == [1] and df.loc[0, "cd"] < 0.05
+    assert "Given each input point's sensor position (a scan): poisson;" in (out / "summary.md").read_text()
 
 
 @pytest.mark.slow
@@ -46,6 +70,9 @@ def test_poisson_runs_as_a_reconstruct_task_end_to_end(tmp_path):
     (["--task", "reconstruct", "--methods", "sals"], "method 'sals' belongs to the encode task"),
     (["--methods", "poisson"], "method 'poisson' belongs to the reconstruct task"),
     (["--pc-points", "1000"], "apply to --task reconstruct"),
+    (["--pc-corruption", "scan"], "apply to --task reconstruct"),
+    (["--task", "reconstruct", "--pc-corruption", "noise-4"], "--pc-corruption='noise-4'"),
+    (["--task", "reconstruct", "--pc-corruption", "scan", "--pc-noise", "0.01"], "for a scan use --pc-corruption"),
     (["--task", "reconstruct", "--pc-points", "10"], "--pc-points='10': expected int in [100, inf)"),
     (["--task", "reconstruct", "--mode", "oracle"], "apply to --task encode"),
     (["--task", "reconstruct", "--methods", "udf-knn", "--train-dir", "/nonexistent"], "--train-dir /nonexistent"),
@@ -135,3 +162,28 @@ def test_a_run_directory_refuses_another_training_set(tmp_path, capsys):
                  "--out", str(out), "--quiet"]) == EXIT_REFUSED
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "trained on another training set (training_set" in err, err
+
+
+def test_exported_clouds_are_the_run_inputs_and_read_back_as_a_pointclouds_dataset(tmp_path, shape):
+    out = tmp_path / "clouds"
+    code = main(["clouds", "--task", "reconstruct", "--limit", "1", "--pc-points", "3000", "--seed", "0", "--quiet",
+                 "--sweep", "pc_corruption=uniform,outliers-2", "--cloud-format", "npz", "--out", str(out)])
+    assert code == 0
+    assert sorted(p.name for p in out.iterdir()) == ["outliers-2-s0", "uniform-s0"]
+    for corruption in ("uniform", "outliers-2"):
+        folder = out / f"{corruption}-s0"
+        assert sorted(p.name for p in folder.iterdir()) == [f"{shape.name}.gt.off", f"{shape.name}.npz"]
+        loaded = get_dataset("pointclouds", data_dir=folder).load(shape.name)
+        points, sensors = input_point_cloud(shape, 3000, 0.0, seed=0, corruption=corruption)
+        assert np.allclose(loaded.points, points, rtol=0, atol=1e-12)  # the run's cloud, through the source frame
+        assert np.allclose(loaded.vertices, shape.vertices, rtol=0, atol=1e-12)
+        assert (loaded.sensors is None) == (sensors is None)
+        if sensors is not None:
+            assert np.allclose(loaded.sensors, sensors, rtol=0, atol=1e-12)
+
+
+def test_clouds_needs_an_output_folder_and_the_reconstruct_task(tmp_path, capsys):
+    assert main(["clouds", "--task", "reconstruct"]) == EXIT_REFUSED
+    assert "clouds writes its files under --out DIR" in capsys.readouterr().err
+    assert main(["clouds", "--out", str(tmp_path / "c")]) == EXIT_REFUSED
+    assert "clouds writes the inputs of --task reconstruct" in capsys.readouterr().err
