@@ -287,8 +287,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return report_main(argv[1:])
     if argv and argv[0] == "train":
         return train_main(argv[1:])
-    if argv and argv[0] == "clouds":
-        return clouds_main(argv[1:])
+    if argv and argv[0] == "export-inputs":
+        return export_inputs_main(argv[1:])
     args = build_parser().parse_args(argv)
     try:
         out = out_dir_of(args)
@@ -309,10 +309,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     return EXIT_OK if outcome.failed == 0 else EXIT_FAILED_TASKS
 
 
-def clouds_main(argv: Sequence[str]) -> int:
-    """``run_benchmark.py clouds --task reconstruct --out DIR [--cloud-format ply|npz] [run settings]``:
-    write the input clouds a run with these settings gives its methods (:mod:`runner.clouds`)."""
-    from runner.clouds import FORMATS, export_clouds
+def export_inputs_main(argv: Sequence[str]) -> int:
+    """``run_benchmark.py export-inputs --out DIR [--cloud-format ply|npz] [run settings]``: write the
+    inputs a run with these settings gives its methods (:mod:`runner.export_inputs`)."""
+    from runner.export_inputs import FORMATS, export_inputs
 
     argv = list(argv)
     fmt = "ply"
@@ -325,17 +325,15 @@ def clouds_main(argv: Sequence[str]) -> int:
         if fmt not in FORMATS:
             raise ConfigError(f"--cloud-format must be one of {', '.join(FORMATS)}, got {fmt!r}")
         if not args.out or args.resume:
-            raise ConfigError("clouds writes its files under --out DIR (and continues no run: --resume does not apply)")
+            raise ConfigError("export-inputs writes its files under --out DIR (and continues no run: --resume does "
+                              "not apply)")
         plan = resolve(configure(args, None))
-        if plan.config.task != "reconstruct":
-            raise ConfigError("clouds writes the inputs of --task reconstruct")
         out = check_writable_dir(Path(args.out), "--out")
     except ConfigError as exc:
         print(f"run_benchmark.py: error: {exc}", file=sys.stderr)
         return EXIT_REFUSED
-    quiet = plan.config.quiet
-    folders = export_clouds(plan, out, fmt, progress=None if quiet else print)
-    print(f"salsbench: input clouds of {len(plan.shapes)} shape(s) in {', '.join(map(str, folders))}")
+    folders = export_inputs(plan, out, fmt, progress=None if plan.config.quiet else print)
+    print(f"salsbench: inputs of {len(plan.shapes)} shape(s) in {', '.join(map(str, folders))}")
     return EXIT_OK
 
 

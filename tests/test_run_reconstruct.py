@@ -166,7 +166,7 @@ def test_a_run_directory_refuses_another_training_set(tmp_path, capsys):
 
 def test_exported_clouds_are_the_run_inputs_and_read_back_as_a_pointclouds_dataset(tmp_path, shape):
     out = tmp_path / "clouds"
-    code = main(["clouds", "--task", "reconstruct", "--limit", "1", "--pc-points", "3000", "--seed", "0", "--quiet",
+    code = main(["export-inputs", "--task", "reconstruct", "--limit", "1", "--pc-points", "3000", "--seed", "0", "--quiet",
                  "--sweep", "pc_corruption=uniform,outliers-2", "--cloud-format", "npz", "--out", str(out)])
     assert code == 0
     assert sorted(p.name for p in out.iterdir()) == ["outliers-2-s0", "uniform-s0"]
@@ -182,11 +182,30 @@ def test_exported_clouds_are_the_run_inputs_and_read_back_as_a_pointclouds_datas
             assert np.allclose(loaded.sensors, sensors, rtol=0, atol=1e-12)
 
 
-def test_clouds_needs_an_output_folder_and_the_reconstruct_task(tmp_path, capsys):
-    assert main(["clouds", "--task", "reconstruct"]) == EXIT_REFUSED
-    assert "clouds writes its files under --out DIR" in capsys.readouterr().err
-    assert main(["clouds", "--out", str(tmp_path / "c")]) == EXIT_REFUSED
-    assert "clouds writes the inputs of --task reconstruct" in capsys.readouterr().err
+def test_export_inputs_needs_an_output_folder(tmp_path, capsys):
+    assert main(["export-inputs", "--task", "reconstruct"]) == EXIT_REFUSED
+    assert "export-inputs writes its files under --out DIR" in capsys.readouterr().err
+    assert main(["export-inputs", "--cloud-format", "obj", "--out", str(tmp_path)]) == EXIT_REFUSED
+    assert "--cloud-format must be one of ply, npz, got 'obj'" in capsys.readouterr().err
+
+
+def test_encode_inputs_are_the_canonical_gt_and_the_shared_samplers_draw(tmp_path, shape):
+    from benchmark.sampler import sample_training_data
+    from benchmark.seeding import job_streams
+    from datasets.io import read_mesh_file
+    from methods.base import get_method
+
+    out = tmp_path / "inputs"
+    assert main(["export-inputs", "--methods", "sals", "--budget", "tiny", "--limit", "1", "--quiet",
+                 "--out", str(out)]) == 0
+    folder = out / "encode-s0"
+    vertices, faces = read_mesh_file(folder / f"{shape.name}.gt.off")
+    assert np.array_equal(vertices, shape.vertices) and np.array_equal(faces, shape.faces)  # canonical, exact
+    budget = get_method("sals").budget("tiny", {})
+    expected = sample_training_data(shape.vertices, shape.faces, budget.num_samples,
+                                    job_streams(shape.content_hash, 0).sampler_rng())
+    with np.load(folder / f"{shape.name}.samples.npz") as got:
+        assert np.array_equal(got["segments"], expected.segments) and np.array_equal(got["group"], expected.group)
 
 
 @pytest.mark.slow
