@@ -67,6 +67,10 @@ def machine_memory_bytes() -> int | None:
         return None
 
 
+#: The entry-point group through which an installed package registers methods or datasets.
+ENTRY_POINT_GROUP = "salsbench.plugins"
+
+
 def _setting(role: str, default, help: str, sweep: str | None = None, **param):
     """A RunConfig field: its :class:`Param` (type, bounds, the ``--help`` text), its role and, for
     a setting a sweep may vary, the sweep key's name."""
@@ -187,8 +191,9 @@ class RunConfig:
         "execution", None, "cache root (default $SALSBENCH_CACHE or ~/.cache/salsbench)", kind=str)
     no_cache: bool = _setting("execution", False, "do not read or write the weights/mesh/field caches")
     plugins: tuple[str, ...] = _setting(
-        "execution", (), "import MODULE (or MODULE:FUNCTION, then call it) first, in the driver and every worker, "
-        "to register extra methods or datasets (repeatable)", item=str)
+        "execution", (), "import MODULE or a file PATH.py (either optionally :FUNCTION, then called) first, in the "
+        "driver and every worker, to register extra methods or datasets (repeatable); installed packages register "
+        f"through the entry-point group {ENTRY_POINT_GROUP!r}", item=str)
     quiet: bool = _setting("execution", False, "no progress bar; one line per finished job (CI logs)")
     gallery: int | None = _setting(
         "execution", None, "shapes with thumbnails in report.html's gallery (default 24; 0: none, the quickest "
@@ -202,6 +207,7 @@ class RunConfig:
             check_fields(self, "")
         except ParamError as exc:
             raise ConfigError(str(exc)) from None
+        object.__setattr__(self, "plugins", tuple(_absolute_plugin(p) for p in self.plugins))  # the workers' too
         if self.task == "reconstruct":
             if self.budget is None:
                 object.__setattr__(self, "budget", "cpu")  # the training budget of the learned methods
@@ -346,12 +352,77 @@ def _plain(value):
     return value
 
 
+_ENTRY_POINTS_LOADED = False
+
+
 def import_plugins(plugins) -> None:
-    """Import each plugin: ``module`` (registers on import) or ``module:function`` (then calls it)."""
+    """Import each plugin, then the installed packages' ``salsbench.plugins`` entry points (once per
+    process). A plugin is a module name (it registers on import), a Python file ``path/to/file.py``
+    (imported as the module ``salsbench_plugin_<stem>``; its code enters the cache keys like a
+    built-in module's), either followed by ``:function`` (then called). An entry point names a
+    module or a function (called once loaded)."""
     import importlib
 
     for name in plugins:
-        module, _, func = name.partition(":")
-        mod = importlib.import_module(module)
+        target, func = split_plugin(name)
+        mod = plugin_from_file(target) if target.endswith(".py") else importlib.import_module(target)
         if func:
             getattr(mod, func)()
+    load_entry_points()
+
+
+def _absolute_plugin(name: str) -> str:
+    """A plugin file's path made absolute (a worker may start in another folder); a module as given."""
+    target, func = split_plugin(name)
+    if not target.endswith(".py"):
+        return name
+    return str(Path(target).expanduser().resolve()) + (f":{func}" if func else "")
+
+
+def split_plugin(name: str) -> tuple[str, str]:
+    """(module or file, function or '') of a ``--plugin`` value."""
+    target, colon, func = name.rpartition(":")
+    if colon and func.isidentifier() and target:
+        return target, func
+    return name, ""
+
+
+def plugin_from_file(path: str):
+    """The module of a plugin file, imported once as ``salsbench_plugin_<stem>`` (ImportError, one
+    line, when the file is missing or another plugin file already took that name)."""
+    import importlib.util
+    import re
+    import sys
+
+    file = Path(path).expanduser().resolve()
+    if not file.is_file():
+        raise ImportError(f"no such file {file}")
+    name = "salsbench_plugin_" + re.sub(r"\W", "_", file.stem)
+    loaded = sys.modules.get(name)
+    if loaded is not None:
+        if Path(loaded.__file__).resolve() != file:
+            raise ImportError(f"{file} and {loaded.__file__} are both plugin module '{name}': rename one")
+        return loaded
+    spec = importlib.util.spec_from_file_location(name, file)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    try:
+        spec.loader.exec_module(module)
+    except BaseException:
+        sys.modules.pop(name, None)
+        raise
+    return module
+
+
+def load_entry_points() -> None:
+    """Load the ``salsbench.plugins`` entry points of the installed packages, once per process."""
+    global _ENTRY_POINTS_LOADED
+    if _ENTRY_POINTS_LOADED:
+        return
+    _ENTRY_POINTS_LOADED = True
+    from importlib.metadata import entry_points
+
+    for entry in entry_points(group=ENTRY_POINT_GROUP):
+        loaded = entry.load()
+        if callable(loaded) and not isinstance(loaded, type):
+            loaded()
