@@ -86,8 +86,11 @@ def execution_text(context: dict) -> str:
 def protocol_items(context: dict) -> list[tuple[str, str]]:
     """(label, value) pairs stating the run's protocol, for captions and the HTML page: dataset,
     task, mode, budget, grid, seeds, then the metric preset's own description."""
-    items = [("dataset", f"{context['dataset']} ({len(context['shapes'])} shapes)"),
-             ("task", str(context["task"])), ("mode", str(context["mode"]))]
+    items = [("dataset", f"{context['dataset']} ({len(context['shapes'])} shapes)"), ("task", str(context["task"]))]
+    if context["task"] == "score":  # meshes made elsewhere: no mode, budget or grid of this run applies
+        return items + [("seeds", ", ".join(str(s) for s in context["seeds"]))] + PRESETS[
+            context["metric_preset"]].describe_items(context["eval_points"])
+    items.append(("mode", str(context["mode"])))
     if context["budget"] is not None:
         families = context["budget_values"] or {}
         if not all(isinstance(v, dict) for v in families.values()):  # flat values, not keyed by family

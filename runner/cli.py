@@ -289,10 +289,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         return train_main(argv[1:])
     if argv and argv[0] == "export-inputs":
         return export_inputs_main(argv[1:])
+    if argv and argv[0] == "score":
+        return score_main(argv[1:])
     args = build_parser().parse_args(argv)
     try:
         out = out_dir_of(args)
         plan = _plan(args, out)  # every check before the directory is created
+        if plan.config.task == "score":
+            _say_unmatched(plan)
         run_dir = RunDirectory(check_writable_dir(out, "--out"))
         with run_dir.lock():
             plan = _plan(args, out)  # again under the lock: another run may have written config.json meanwhile
@@ -309,17 +313,59 @@ def main(argv: Sequence[str] | None = None) -> int:
     return EXIT_OK if outcome.failed == 0 else EXIT_FAILED_TASKS
 
 
+def _take(argv: list[str], flag: str, default: str | None = None) -> str | None:
+    """The value of ``flag`` in ``argv``, removed from it (``default`` when absent; '' when it ends argv)."""
+    if flag not in argv:
+        return default
+    at = argv.index(flag)
+    value = argv[at + 1] if at + 1 < len(argv) else ""
+    del argv[at:at + 2]
+    return value
+
+
+def score_main(argv: Sequence[str]) -> int:
+    """``run_benchmark.py score --pred-dir DIR --name NAME [--pred-frame original|canonical] [--dataset ...
+    --out ...]``: score a folder of meshes made elsewhere as the method NAME of a run of ``--task
+    score`` (:mod:`runner.external`); every other setting as for a run."""
+    from runner.external import FRAMES, register_external
+
+    argv = list(argv)
+    pred_dir, name, frame = _take(argv, "--pred-dir"), _take(argv, "--name"), _take(argv, "--pred-frame", "original")
+    try:
+        if not pred_dir or not name:
+            raise ConfigError("score needs --pred-dir DIR (the predicted meshes) and --name NAME (their method's row)")
+        if frame not in FRAMES:
+            raise ConfigError(f"--pred-frame must be one of {', '.join(FRAMES)}, got {frame!r}")
+        folder = Path(pred_dir).expanduser().resolve()
+        if not folder.is_dir():
+            raise ConfigError(f"--pred-dir {pred_dir}: not a folder")
+        register_external(name, str(folder), frame)
+    except (ConfigError, ValueError) as exc:
+        print(f"run_benchmark.py: error: {exc}", file=sys.stderr)
+        return EXIT_REFUSED
+    return main(["--task", "score", "--methods", name, "--method-param", f"{name}.pred_dir={folder}",
+                 "--method-param", f"{name}.pred_frame={frame}", *argv])
+
+
+def _say_unmatched(plan) -> None:
+    """One line listing the predictions of a score run that match none of its shapes (ignored)."""
+    from runner.external import unmatched_predictions
+
+    for name in plan.methods:
+        extra = unmatched_predictions(plan.method_params[name]["pred_dir"], plan.shapes, name)
+        if extra:
+            shown = ", ".join(extra[:10]) + (f" and {len(extra) - 10} more" if len(extra) > 10 else "")
+            print(f"salsbench: {name}: {len(extra)} prediction(s) match no shape of the dataset, ignored: {shown}",
+                  file=sys.stderr)
+
+
 def export_inputs_main(argv: Sequence[str]) -> int:
     """``run_benchmark.py export-inputs --out DIR [--cloud-format ply|npz] [run settings]``: write the
     inputs a run with these settings gives its methods (:mod:`runner.export_inputs`)."""
     from runner.export_inputs import FORMATS, export_inputs
 
     argv = list(argv)
-    fmt = "ply"
-    if "--cloud-format" in argv:
-        at = argv.index("--cloud-format")
-        fmt = argv[at + 1] if at + 1 < len(argv) else ""
-        del argv[at:at + 2]
+    fmt = _take(argv, "--cloud-format", "ply")
     args = build_parser().parse_args(argv)
     try:
         if fmt not in FORMATS:

@@ -33,7 +33,7 @@ from benchmark.params import Param, ParamError, check_fields, params_of, setting
 from benchmark.seeding import MAX_SEED
 
 MODES = ("neural", "oracle")
-TASKS = ("encode", "reconstruct")
+TASKS = ("encode", "reconstruct", "score")
 #: Fewest points of an input cloud (reconstruct task).
 MIN_PC_POINTS = 100
 DEFAULT_PC_POINTS = 40_000
@@ -83,7 +83,8 @@ class RunConfig:
 
     task: str = _setting(
         "identity", "encode", "encode (default): fit a field per shape from its mesh and extract it; reconstruct: "
-        "a mesh from a raw point cloud sampled from the GT (no normals)", choices=TASKS)
+        "a mesh from a raw point cloud sampled from the GT (no normals); score: meshes made elsewhere, read from a "
+        "folder (run_benchmark.py score)", choices=TASKS)
     dataset: str = _setting(
         "identity", "builtin", "dataset: builtin (default; 4 generated CAD-like shapes, no download), abc, "
         "abc-nonmanifold, meshes (any folder of mesh files)")
@@ -208,7 +209,9 @@ class RunConfig:
         except ParamError as exc:
             raise ConfigError(str(exc)) from None
         object.__setattr__(self, "plugins", tuple(_absolute_plugin(p) for p in self.plugins))  # the workers' too
-        if self.task == "reconstruct":
+        if self.task == "score":
+            object.__setattr__(self, "budget", None)  # nothing is fitted or trained
+        elif self.task == "reconstruct":
             if self.budget is None:
                 object.__setattr__(self, "budget", "cpu")  # the training budget of the learned methods
         elif self.mode == "oracle" and self.budget is not None:
@@ -243,14 +246,17 @@ class RunConfig:
         if self.pc_points > self.max_points:
             raise ConfigError(f"--pc-points {self.pc_points} is over the limit of {self.max_points} points a job "
                               f"may hold (--max-points)")
-        if self.task == "encode" and (self.pc_points != DEFAULT_PC_POINTS or self.pc_noise != 0
-                                      or self.pc_corruption != "uniform"):
+        if self.task != "reconstruct" and (self.pc_points != DEFAULT_PC_POINTS or self.pc_noise != 0
+                                           or self.pc_corruption != "uniform"):
             raise ConfigError("--pc-points, --pc-noise and --pc-corruption apply to --task reconstruct")
         if self.pc_noise != 0 and (self.pc_corruption != "uniform" or "pc_corruption" in self.sweep):
             raise ConfigError("--pc-noise adds Gaussian noise to uniform samples; for a scan use --pc-corruption "
                               "noise-1, noise-2 or noise-3 (noise along the sensor's rays)")
-        if self.task == "reconstruct" and (self.mode != "neural" or self.checkpoints):
+        if self.task != "encode" and (self.mode != "neural" or self.checkpoints):
             raise ConfigError("--mode oracle and --checkpoints apply to --task encode")
+        if self.task == "score" and (self.budget_params or self.sweep or self.train_dirs):
+            raise ConfigError("--task score reads meshes made elsewhere: --budget-param, --sweep and --train-dir do "
+                              "not apply")
         if self.decompose and (self.mode != "neural" or self.task != "encode"):
             raise ConfigError("--decompose needs --mode neural and --task encode (it splits a fitted field's error)")
         if self.budget_params and self.mode != "neural":

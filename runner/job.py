@@ -454,8 +454,28 @@ def _reconstruct_body(spec: JobSpec, shape, device, timer: StageTimer, result: T
            np.asarray(extraction.faces, dtype=np.int64), result, report)
 
 
+def _score_body(spec: JobSpec, shape, device, timer: StageTimer, result: TaskResult, report: _Progress) -> None:
+    """The score task: read the shape's prediction made elsewhere (:mod:`runner.external`), move it
+    into the canonical frame, score it against the GT."""
+    from benchmark import metrics
+    from datasets.io import read_mesh_file
+    from runner.external import external_seconds, prediction_file
+
+    pred_dir, frame = spec.params["pred_dir"], spec.params["pred_frame"]
+    with stage("read"):
+        path = prediction_file(pred_dir, spec.shape, spec.method)
+        vertices, faces = read_mesh_file(path)
+    if frame == "original":
+        vertices = shape.transform.apply(vertices)
+    result.info["prediction"] = str(path)
+    seconds = external_seconds(pred_dir).get(spec.shape)
+    if seconds is not None:
+        timer.add("external_s", seconds)
+    _score(metrics.evaluate, spec, shape, vertices, faces, result, report)
+
+
 #: The job body of each task (``RunConfig.task``).
-_JOB_BODIES = {"encode": _job_body, "reconstruct": _reconstruct_body}
+_JOB_BODIES = {"encode": _job_body, "reconstruct": _reconstruct_body, "score": _score_body}
 
 
 def run_task(spec, progress: Callable[..., None] | None = None) -> TaskResult:

@@ -77,6 +77,25 @@ class Plan:
                 "dataset_options": self.dataset_options, "shapes": list(self.shapes)}
 
 
+def _register_externals(config: RunConfig) -> None:
+    """Register the external methods a score run names (:mod:`runner.external`), each with its folder
+    of predictions, which must exist."""
+    from runner.external import register_external
+
+    if not config.methods:
+        raise ConfigError("--task score needs the predictions' method name (run_benchmark.py score --name NAME "
+                          "--pred-dir DIR)")
+    for name in config.methods:
+        params = dict(config.method_params.get(name, {}))
+        pred_dir = str(params.get("pred_dir", ""))
+        if not pred_dir or not Path(pred_dir).is_dir():
+            raise ConfigError(f"{name}.pred_dir {pred_dir or '(not given)'}: not a folder of predicted meshes")
+        try:
+            register_external(name, pred_dir, str(params.get("pred_frame", "original")))
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+
+
 def _existing(flag: str, value: str, kind: str) -> str:
     path = Path(value).expanduser()
     if not (path.is_dir() if kind == "directory" else path.is_file()):
@@ -91,6 +110,8 @@ def resolve(config: RunConfig) -> Plan:
             import_plugins([name])
         except (ImportError, AttributeError) as exc:
             raise ConfigError(f"--plugin {name}: cannot load ({type(exc).__name__}: {exc})") from None
+    if config.task == "score":
+        _register_externals(config)
     from benchmark.metrics import PRESETS
     from methods.base import METHODS, available_methods
     from benchmark.params import ParamError
