@@ -71,6 +71,7 @@ JOB_COLUMNS: tuple[Column, ...] = (
     _c("eval_points", "INTEGER", "setup"),
     _c("metric_preset", "TEXT", "setup"),
     _c("used_sensors", "INTEGER", "setup", "sensors", csv=True),
+    _c("seen_in_training", "INTEGER", "setup", "seen in training", csv=True),
     _c("shape_hash", "TEXT", "bookkeeping"),
     _c("shape_kind", "TEXT", "bookkeeping"),
     _c("fit_loss", "REAL", "bookkeeping"),

@@ -232,6 +232,13 @@ class Method:
         None. Such a method is left out of the default method list and refused when named."""
         return None
 
+    def training_record(self):
+        """What the trained weights this method reads were trained on
+        (:class:`methods.core.training_record.TrainingRecord`), so each result row can say whether
+        its shape was seen in training; None for a method that reads no trained weights. A learned
+        point-cloud method's record comes from its training set (the run layer knows it)."""
+        return None
+
     def extraction_data_digest(self) -> str:
         """A digest of the data files (not code) the extraction reads, e.g. trained weights, or ''
         when it reads none: part of the key of its cached meshes, so a changed file never serves a

@@ -308,6 +308,8 @@ def write_html(path: Path, summary: Summary, timing: pd.DataFrame, context: dict
     n_jobs, n_failed = len(results), int((results["status"] != "ok").sum())
     t = summary.tables
     summary_html = (_highlights(summary, colors) + table_html(t["mean"]) + notes_html(t["mean"])
+                    + (f'<h4>{esc(t["mean-unseen"].title)}</h4>' + table_html(t["mean-unseen"])
+                       + notes_html(t["mean-unseen"]) if "mean-unseen" in t else "")
                     + f'<p class="note">{esc(summary.caption)} <a href="#protocol">Details</a>.</p>'
                     + '<details><summary>Median and standard deviation</summary>'
                     + f'<h4>{esc(t["median"].title)}</h4>' + table_html(t["median"])

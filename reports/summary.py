@@ -101,6 +101,44 @@ def validity_table(results: pd.DataFrame, floor: pd.DataFrame | None, methods: l
     return table
 
 
+#: Marks a per-shape cell whose shape was in the training set of the weights its method used.
+SEEN_MARK = "§"
+
+
+def seen_pairs(results: pd.DataFrame) -> set[tuple[str, str]]:
+    """(shape, method) pairs of the jobs whose shape was in the training set of the weights their
+    method used (``seen_in_training``)."""
+    if "seen_in_training" not in results.columns:
+        return set()
+    seen = results[as_bool(results["seen_in_training"])]
+    return set(zip(seen["shape"], seen["method"]))
+
+
+def training_overlap_note(results: pd.DataFrame, shapes: list[str]) -> str | None:
+    """One paragraph: per method whose weights saw some of ``shapes``, which ones (and what the
+    weights were trained on), and the methods for which it is unknown; None when no method's
+    weights saw any and none is unknown."""
+    if "seen_in_training" not in results.columns:
+        return None
+    parts = []
+    for method, rows in results.groupby("method", sort=False):
+        flags = pd.to_numeric(rows["seen_in_training"], errors="coerce")
+        seen = sorted(set(rows.loc[flags > 0.5, "shape"]))
+        if seen:
+            parts.append(f"{method}: its weights were trained on {len(seen)} of the {len(shapes)} shapes "
+                         f"({', '.join(seen)}), marked {SEEN_MARK} in the per-shape tables.")
+        elif flags.isna().all() and _has_record(rows):
+            parts.append(f"{method}: whether its weights saw these shapes is unknown (its weights do not "
+                         "record their training shapes).")
+    return " ".join(["Seen in training."] + parts) if parts else None
+
+
+def _has_record(rows: pd.DataFrame) -> bool:
+    """Whether these jobs used trained weights with a training record (``info.training_record``)."""
+    info = rows["info"] if "info" in rows.columns else pd.Series(dtype=object)
+    return bool(info.astype(str).str.contains("training_record", regex=False).any())
+
+
 def per_shape_table(results: pd.DataFrame, floor: pd.DataFrame | None, metric, methods: list[str],
                     shapes: list[str], caption: str) -> Table:
     """Shapes x methods, the mean over the seeds of successful jobs of one metric.
@@ -108,8 +146,10 @@ def per_shape_table(results: pd.DataFrame, floor: pd.DataFrame | None, metric, m
     A cell is 'failed' where every seed failed (hover text: the error), 'empty' where every
     successful seed predicted an empty mesh, 'NaN' where the metric is otherwise undefined (no
     predicted edge points), a dash where the method has no job. Best per row in bold; the floor
-    column is a reference.
+    column is a reference. A value whose shape was in the training set of its method's weights
+    carries :data:`SEEN_MARK`.
     """
+    seen = seen_pairs(results)
     has_floor = floor is not None and "shape" in floor.columns and metric.column in floor.columns
     headers = ["shape"] + methods + (["floor"] if has_floor else [])
     table = Table(f"shape-{metric.column}", f"Per shape: {metric_header(metric)} (mean over seeds)", caption,
@@ -137,7 +177,7 @@ def per_shape_table(results: pd.DataFrame, floor: pd.DataFrame | None, metric, m
             elif k not in n_ok.index:
                 row.append(Cell("failed", title=one_line(error.get(k))))
             elif np.isfinite(v):
-                row.append(Cell(fmt(v), bold))
+                row.append(Cell(fmt(v) + (SEEN_MARK if k in seen else ""), bold))
             else:
                 row.append(Cell("empty" if all_empty.get(k, False) else "NaN"))
         if has_floor:
@@ -200,6 +240,17 @@ def build_summary(results: pd.DataFrame, floor: pd.DataFrame | None, context: di
     for m in metrics:
         if m.column in PER_SHAPE:
             tables[f"shape-{m.column}"] = per_shape_table(rows, floor, m, methods, scored_shapes, caption)
+    overlap = training_overlap_note(rows, scored_shapes)
+    if overlap:
+        tables["mean"].notes.append(overlap)
+        unseen = [s for s in scored_shapes if s not in {shape for shape, _ in seen_pairs(rows)}]
+        if unseen:
+            kept = rows[rows["shape"].isin(unseen)]
+            kept_floor = floor[floor["shape"].isin(unseen)] if floor is not None and "shape" in floor.columns else floor
+            tables["mean-unseen"] = statistic_table(
+                method_statistics(kept, kept_floor, metrics, methods), metrics, "mean", key="mean-unseen",
+                caption=stat_caption, title=f"Mean over the {len(unseen)} shapes no method's weights were trained on")
+            tables["mean-unseen"].notes.append(f"Shapes: {', '.join(unseen)}; bold and † over these shapes only.")
     unscored = unscored_table(results, methods, caption)
     if unscored is not None:
         tables["unscored"] = unscored

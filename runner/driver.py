@@ -65,7 +65,8 @@ def record_result(db: ResultsDB, run_dir: RunDirectory, result: TaskResult, firs
         "attempts": result.attempts, "cache": ",".join(result.cache) or None,
         "cache_rejected": len(result.cache_rejected), "device": result.device, "host": result.host,
         "versions": result.versions, "info": result.info, "started": result.started,
-        "used_sensors": result.info.get("used_sensors"), **common,
+        "used_sensors": result.info.get("used_sensors"), "seen_in_training": result.info.get("seen_in_training"),
+        **common,
     }, result.metrics, result.timings, sweep=spec.sweep, fitted=int(bool(result.info.get("fitted"))))
 
 

@@ -227,6 +227,7 @@ def _job_body(spec: JobSpec, shape, device, timer: StageTimer, result: TaskResul
     from methods.base import get_method
 
     method = get_method(spec.method, **spec.params)
+    _record_training_overlap(method.training_record(), shape, result)
     stats = CacheStats()
     caches = RunCaches(spec.cache_dir, stats)
     weights_key = None
@@ -415,6 +416,17 @@ def input_point_cloud(shape, n: int, noise: float, seed: int,
     return np.asarray(points, dtype=np.float64), sensors
 
 
+def _record_training_overlap(record, shape, result: TaskResult) -> None:
+    """Whether the shape was in the training set of the weights the method used (``record``:
+    :class:`methods.core.training_record.TrainingRecord`, None for a method without trained
+    weights), in the job's info as ``seen_in_training`` (True, False, or None: unknown) and
+    ``training_record`` (what the weights were trained on)."""
+    if record is None:
+        return
+    result.info["seen_in_training"] = record.saw(shape.name, shape.content_hash)
+    result.info["training_record"] = record.description
+
+
 def _reconstruct_body(spec: JobSpec, shape, device, timer: StageTimer, result: TaskResult, report: _Progress) -> None:
     """The reconstruct task: sample the input cloud, reconstruct, score against the GT."""
     from benchmark import metrics
@@ -426,7 +438,7 @@ def _reconstruct_body(spec: JobSpec, shape, device, timer: StageTimer, result: T
     if budget is not None and not method.learned:  # a per-shape optimisation under its own budget
         network["budget"] = budget
     if budget is not None and method.learned:  # its network, trained once across shapes (cached)
-        from runner.training import trained_network
+        from runner.training import network_training_record, trained_network
 
         report("training")
         stats = CacheStats()
@@ -438,6 +450,7 @@ def _reconstruct_body(spec: JobSpec, shape, device, timer: StageTimer, result: T
             network["model"], facts = trained_network(method, budget, spec.train_dirs, spec.cache_dir, device,
                                                       stats=stats, progress=training_progress)
         result.info.update(facts)
+        _record_training_overlap(network_training_record(method, budget, spec.train_dirs), shape, result)
         result.cache, result.cache_rejected = list(stats.hits), list(stats.rejected)
     report("sampling")
     with stage("sample"):

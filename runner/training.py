@@ -50,10 +50,22 @@ def default_train_dirs() -> tuple[str, ...]:
 
 
 @lru_cache(maxsize=4)
+@lru_cache(maxsize=8)
 def _shapes(count: int, dirs: tuple[str, ...]):
     from methods.pointcloud.training_set import DEFAULT_TRAINING_SEED, training_shapes
 
     return tuple(training_shapes(count=count, seed=DEFAULT_TRAINING_SEED, extra_dirs=[Path(d) for d in dirs]))
+
+
+def network_training_record(method, budget, train_dirs: tuple[str, ...]):
+    """The :class:`methods.core.training_record.TrainingRecord` of the network ``method`` trains at
+    ``budget`` on the built-in parts and ``train_dirs``: its training shapes' content hashes."""
+    from methods.core.training_record import TrainingRecord
+
+    shapes = _shapes(budget.training_shapes, tuple(train_dirs))
+    where = f" + {', '.join(train_dirs)}" if train_dirs else ""
+    return TrainingRecord(f"{method.name}'s network ({budget.name} budget): {len(shapes)} shapes, built-in training "
+                          f"parts{where}", content_hashes=frozenset(s.content_hash for s in shapes))
 
 
 def network_code_modules(method) -> tuple[str, ...]:

@@ -48,6 +48,9 @@ WEIGHTS_ENV = "SALSBENCH_NDC_WEIGHTS"
 DEFAULT_WEIGHTS = Path(__file__).resolve().parents[3] / "shared" / "data" / "weights" / "ndc" / "network_float.pth"
 #: SHA-256 of NDC's published SDF-input network (github.com/czq142857/NDC, ``network_float.pth``).
 WEIGHTS_SHA256 = "935d1bb16fb7c2bbbb68e2c3f521001aae1cbeff4cf0fc01984f414cfe4a247e"
+#: The ABC object ids (inclusive) NDC's published networks were trained on (its training split:
+#: ABC objects 00000002-00007903).
+TRAINING_ABC_IDS = ((2, 7903),)
 
 #: Grid points of padding each side: the receptive field of the three unpadded 3x3x3 convolutions.
 RECEPTIVE_PADDING = 3

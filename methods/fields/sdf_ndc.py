@@ -18,6 +18,7 @@ from methods.extractors import ndc
 from methods.core import query
 from methods.core.weights import WeightsError
 from methods.base import Extraction, register_method
+from methods.core.training_record import TrainingRecord
 from methods.fields.sdf import SDFMethod
 
 
@@ -43,6 +44,10 @@ class SDFNDCMethod(SDFMethod):
 
     def extraction_data_digest(self) -> str:
         return ndc.WEIGHTS_SHA256
+
+    def training_record(self) -> TrainingRecord:
+        return TrainingRecord("NDC's published SDF network: ABC objects 00000002-00007903",
+                              abc_ranges=ndc.TRAINING_ABC_IDS)
 
     def neural_grid(self, model, N, device=None):
         margin = query.block_half_diagonal(N, self.params["stride"]) + ndc.INPUT_CLIP * spacing(N)

@@ -28,6 +28,7 @@ from methods.core import query
 from methods.extractors import undc
 from methods.core.weights import WeightsError
 from methods.base import Extraction, register_method
+from methods.core.training_record import TrainingRecord
 from methods.fields.udf import UDFMethod
 
 
@@ -76,6 +77,12 @@ class UDFNDCMethod(UDFMethod):
 
     def extraction_data_digest(self) -> str:
         return _load()[2]["sha256"]
+
+    def training_record(self) -> TrainingRecord:
+        info = _load()[2]
+        hashes = info.get("training_hashes")  # weights trained before it was recorded: unknown
+        return TrainingRecord(f"our UNDC weights ({info['sha256'][:12]}), training set {info.get('training_set')}",
+                              content_hashes=None if hashes is None else frozenset(hashes))
 
     def extract(self, grid_field, N) -> Extraction:
         bool_network, float_network, info = _load()

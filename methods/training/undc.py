@@ -257,10 +257,13 @@ class UNDCTrainResult:
     seconds: float
     label_seconds: float
     training_set: str
+    training_hashes: tuple[str, ...] = ()
 
     def info(self, budget: UNDCBudget, seed: int) -> dict:
-        """What the weights file records beside the networks."""
+        """What the weights file records beside the networks (with each training shape's content
+        hash, so a result row can say whether its shape was seen in training)."""
         return {"budget": budget.to_dict(), "seed": int(seed), "training_set": self.training_set,
+                "training_hashes": list(self.training_hashes),
                 "bool_final_loss": float(self.bool_losses[-budget.log_every:].mean()),
                 "float_final_loss": float(self.float_losses[-budget.log_every:].mean()),
                 "train_seconds": float(self.seconds), "label_seconds": float(self.label_seconds)}
@@ -298,7 +301,7 @@ def train(shapes: Sequence, budget: str | UNDCBudget, seed: int = 0,
         losses[kind] = result.losses
         seconds += result.seconds
     return UNDCTrainResult(networks["bool"], networks["float"], losses["bool"], losses["float"], seconds,
-                           label_seconds, training_set_digest(shapes))
+                           label_seconds, training_set_digest(shapes), tuple(s.content_hash for s in shapes))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
