@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
+import pytest
 
 import reports
 from reports.robustness import build_robustness, level_names, robustness_plot
@@ -56,6 +57,7 @@ def test_order_notes_say_where_the_ordering_changes_and_which_methods_degrade_mo
     assert notes[-1] == "Mean CD grows at every step scan -> 1 -> 2 -> 3: poisson; not for geoudf."
 
 
+@pytest.mark.slow
 def test_no_robustness_without_a_corruption_sweep_and_the_files_with_one(tmp_path):
     assert build_robustness(results(), dict(CONTEXT_R, sweep={})) is None
     assert build_robustness(results(), dict(CONTEXT_R, sweep={"pc_corruption": ["uniform", "scan"]})) is None

@@ -57,6 +57,7 @@ def _score(tmp_path, data_dir, pred_dir, name="mine", *extra):
     return code, out
 
 
+@pytest.mark.slow
 def test_the_gt_itself_scores_at_the_floor_and_a_shifted_sphere_the_analytic_shift(shapes, tmp_path):
     """The GT given back scores exactly its floor row (the same metric samples: F1 -> 1 and CD -> 0
     as the points grow; at 20k points the floor's CD is ~0.01)."""
