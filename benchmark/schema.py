@@ -72,6 +72,17 @@ JOB_COLUMNS: tuple[Column, ...] = (
     _c("metric_preset", "TEXT", "setup"),
     _c("used_sensors", "INTEGER", "setup", "sensors", csv=True),
     _c("seen_in_training", "INTEGER", "setup", "seen in training", csv=True),
+    # added after the columns above: declared here so that the earlier results.csv lead columns keep
+    # their positions (benchmark.metrics: distance distribution, volumetric IoU, topology, self-intersections)
+    _c("iou", "REAL", "metric", csv=True),
+    _c("dist_median", "REAL", "metric", csv=True),
+    _c("dist_p90", "REAL", "metric", csv=True),
+    _c("dist_p99", "REAL", "metric", csv=True),
+    _c("hausdorff", "REAL", "metric", csv=True),
+    _c("euler_characteristic", "INTEGER", "validity", "Euler char."),
+    _c("genus", "REAL", "validity", "genus", csv=True),
+    _c("self_intersecting_pairs", "INTEGER", "validity", "self-int. pairs", csv=True),
+    _c("self_intersecting_faces", "INTEGER", "validity", "self-int. faces"),
     _c("shape_hash", "TEXT", "bookkeeping"),
     _c("shape_kind", "TEXT", "bookkeeping"),
     _c("fit_loss", "REAL", "bookkeeping"),

@@ -9,9 +9,9 @@ One :class:`numpy.random.SeedSequence` per (shape, seed)::
   (:mod:`benchmark.sampler`): every method of a shape and seed sees the same samples.
 * ``fitting`` -> a 63-bit integer for ``torch.manual_seed`` and the batch-order generator
   (:mod:`methods.core.fitting`): network initialisation and batch order.
-* ``metrics`` -> the SeedSequence :func:`benchmark.metrics.evaluate` spawns its two sampling
-  streams from (child 0: GT samples, child 1: prediction samples), so every prediction of a shape
-  and the floor row are scored against the same GT samples.
+* ``metrics`` -> the SeedSequence :func:`benchmark.metrics.evaluate` spawns its streams from
+  (child 0: GT samples, child 1: prediction samples, child 2: the IoU's points), so every
+  prediction of a shape and the floor row are scored against the same GT samples.
 * ``calibration`` -> the generator of a method's calibration after its fit
   (:meth:`methods.base.Method.calibrate`, e.g. SALS's per-shape o threshold). Spawned fourth, so
   the three streams above are those of a three-way spawn.

@@ -11,7 +11,8 @@ from tests.test_metrics import box, square
 def test_validity_of_cube_square_and_nonmanifold_fan():
     v, f = box(2.0)
     assert M.mesh_validity(v, f) == {
-        "n_vertices": 8, "n_faces": 12, "boundary_edges": 0, "nonmanifold_edges": 0, "components": 1, "watertight": True}
+        "n_vertices": 8, "n_faces": 12, "boundary_edges": 0, "nonmanifold_edges": 0, "components": 1, "watertight": True,
+        "euler_characteristic": 2, "genus": 0.0}  # 8 - 18 + 12; (2 * 1 - 2) / 2 (tests/test_metrics_topology.py)
     sv, sf = square()
     got = M.mesh_validity(sv, sf)
     assert (got["boundary_edges"], got["nonmanifold_edges"], got["components"], got["watertight"]) == (4, 0, 1, False)

@@ -24,7 +24,8 @@ def _format_table(result: dict, preset: MetricPreset, frame_note: str) -> str:
     scale = preset.report_scale
     rows = [("CD", "cd"), ("CD gt->pred", "cd_gt_to_pred"), ("CD pred->gt", "cd_pred_to_gt"), ("NC", "nc")]
     rows += [(f"F1@{t:g}", k) for t, k in zip(preset.f1_thresholds, preset.f1_keys)]
-    rows += [("ECD", "ecd"), ("EF1", "ef1")]
+    rows += [("distance median", "dist_median"), ("distance p90", "dist_p90"), ("distance p99", "dist_p99"),
+             ("Hausdorff", "hausdorff"), ("IoU", "iou"), ("ECD", "ecd"), ("EF1", "ef1")]
     lines = [preset.describe(result['n_points']), f"seed {result['seed']}, n = {result['n_points']:,} points per mesh; {frame_note}", ""]
     for label, key in rows:
         s = scale.get(key, 1.0)
@@ -38,6 +39,11 @@ def _format_table(result: dict, preset: MetricPreset, frame_note: str) -> str:
         f"{result['nonmanifold_edges']:,} non-manifold edges, {result['components']:,} components, "
         f"watertight {'yes' if result['watertight'] else 'no'}"
     )
+    lines.append(f"  Euler characteristic {result['euler_characteristic']}, genus {result['genus']:g} (NaN unless "
+                 f"watertight), self-intersecting face pairs {result['self_intersecting_pairs']} "
+                 f"({result['self_intersecting_faces']} faces)")
+    if result["self_intersections_skipped"]:
+        lines.append(f"  self-intersections not searched: {result['self_intersections_skipped']}")
     if result["edge_search_skipped"]:
         lines.append(f"  ECD/EF1 not computed: {result['edge_search_skipped']}")
     if result["empty_prediction"]:

@@ -9,7 +9,9 @@ import numpy as np
 
 from benchmark.metrics.distances import edge_metrics, spatial_order, surface_metrics
 from benchmark.metrics.edges import EdgeSearchTooDense, sharp_edge_points
+from benchmark.metrics.iou import IOU_POINTS, volumetric_iou
 from benchmark.metrics.presets import MetricPreset, get_preset
+from benchmark.metrics.self_intersections import self_intersections
 from benchmark.metrics.validity import mesh_validity
 from benchmark.surface import MIN_RELATIVE_AREA, binary_exponent, relative_area, sample_surface
 from benchmark.timing import StageTimer
@@ -19,9 +21,11 @@ __all__ = ["evaluate", "floor"]
 Seed = int | np.random.SeedSequence
 
 
-def _sampling_streams(seed: Seed) -> tuple[np.random.Generator, np.random.Generator, int | str]:
-    """The GT and prediction generators (children 0 and 1 of the seed's SeedSequence) and the seed
-    as the result records it (the int itself; for a SeedSequence, its state as a string).
+def _sampling_streams(seed: Seed) -> tuple[np.random.Generator, np.random.Generator, np.random.Generator, int | str]:
+    """The GT, prediction and IoU generators (children 0, 1 and 2 of the seed's SeedSequence) and
+    the seed as the result records it (the int itself; for a SeedSequence, its state as a string).
+    Children 0 and 1 of a three-way spawn are those of a two-way spawn (the same spawn keys), so the
+    IoU's points changed no number drawn before it existed.
 
     A SeedSequence is rebuilt from its entropy, spawn key and pool size before spawning, so the
     streams do not depend on how many children it spawned before this call."""
@@ -32,8 +36,8 @@ def _sampling_streams(seed: Seed) -> tuple[np.random.Generator, np.random.Genera
         root, record = np.random.SeedSequence(int(seed)), int(seed)
     else:
         raise ValueError(f"seed must be a non-negative int or a numpy.random.SeedSequence, got {seed!r}")
-    gt_stream, pred_stream = (np.random.default_rng(s) for s in root.spawn(2))
-    return gt_stream, pred_stream, record
+    gt_stream, pred_stream, iou_stream = (np.random.default_rng(s) for s in root.spawn(3))
+    return gt_stream, pred_stream, iou_stream, record
 
 
 def _bbox(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -93,7 +97,8 @@ def evaluate(
     preset : str or MetricPreset
         The protocol (:data:`PRESETS` name or a preset).
     seed : int >= 0 or numpy.random.SeedSequence
-        GT samples come from child 0 and prediction samples from child 1 of ``SeedSequence(seed)``
+        GT samples come from child 0, prediction samples from child 1 and the IoU's points from
+        child 2 of ``SeedSequence(seed)``
         for an int, or of the SeedSequence itself (the run layer passes
         ``benchmark.seeding.job_streams(shape_hash, seed).metrics``), rebuilt from its state first so
         its earlier spawns do not matter.
@@ -104,7 +109,12 @@ def evaluate(
     -------
     dict
         Flat, raw (unscaled) values in the preset's frame: ``cd, cd_gt_to_pred, cd_pred_to_gt, nc``,
-        ``f1_*/precision_*/recall_*`` per threshold, ``ecd, ef1, eprecision, erecall, ecd_flag``,
+        ``f1_*/precision_*/recall_*`` per threshold, ``dist_median, dist_p90, dist_p99,
+        hausdorff`` (the distribution of CD's nearest distances, both directions pooled:
+        :func:`~benchmark.metrics.distances.distance_distribution`), ``iou`` (volumetric IoU on
+        :data:`~benchmark.metrics.iou.IOU_POINTS` points, :func:`~benchmark.metrics.iou.volumetric_iou`;
+        NaN unless the GT and the prediction are both watertight with no dropped face),
+        ``ecd, ef1, eprecision, erecall, ecd_flag``,
         ``gt_edge_points, pred_edge_points`` (counts; -1 = not computed), ``edge_search_skipped``
         ('' or why the exact edge search was refused, :class:`EdgeSearchTooDense`: ECD/EF1 are then
         NaN; happens for samples far denser than r, e.g. a prediction 100x smaller than the GT),
@@ -112,7 +122,10 @@ def evaluate(
         below :data:`~benchmark.surface.MIN_RELATIVE_AREA` of its own bounding box's largest side
         squared, whatever its size; distance metrics NaN, F1 0), ``dropped_faces`` (faces with
         out-of-range indices or non-finite vertices, excluded from sampling), the validity columns
-        of the prediction as given (:func:`mesh_validity`), the protocol: ``preset, n_points,
+        of the prediction as given (:func:`mesh_validity`, with ``euler_characteristic`` and
+        ``genus``), its self-intersections (:func:`~benchmark.metrics.self_intersections.self_intersections`:
+        ``self_intersecting_pairs, self_intersecting_faces``, NaN for an empty prediction, and
+        ``self_intersections_skipped``, '' or why they were not searched), the protocol: ``preset, n_points,
         seed`` (the int, or the SeedSequence's state as a string), ``gt_diagonal, edge_radius,
         ef1_threshold`` (absolute, in the frame), ``scored`` (True: scored against a GT; see
         :func:`evaluate_without_gt`), and ``seconds``: ``<stage>_s`` wall-clock seconds
@@ -130,7 +143,7 @@ def evaluate(
     n = int(preset.n_points if n_points is None else n_points)
     if n < 1:
         raise ValueError(f"n_points must be >= 1, got {n}")
-    gt_stream, pred_stream, seed_record = _sampling_streams(seed)
+    gt_stream, pred_stream, iou_stream, seed_record = _sampling_streams(seed)
     gt_vertices = np.asarray(gt_vertices, dtype=np.float64)
     gt_faces = np.asarray(gt_faces, dtype=np.int64)
     pred_vertices = np.asarray(pred_vertices, dtype=np.float64)
@@ -180,6 +193,7 @@ def evaluate(
             result.update(cd=nan, cd_gt_to_pred=nan, cd_pred_to_gt=nan, nc=nan)
             for key in preset.f1_keys:
                 result.update({key: 0.0, f"precision_{key[3:]}": 0.0, f"recall_{key[3:]}": 0.0})
+            result.update(dist_median=nan, dist_p90=nan, dist_p99=nan, hausdorff=nan)
         else:
             result.update(surface_metrics(gt_points, gt_normals, pred_points, pred_normals, preset))
 
@@ -202,6 +216,13 @@ def evaluate(
         else:
             edges = edge_metrics(gt_points[gt_edge], pred_points[pred_edge], preset, gt_diagonal)
     result.update(edges)
+
+    with timer.stage("iou"):
+        closed = (not empty and validity["watertight"] and len(usable) == len(pred_faces)
+                  and mesh_validity(gt_vertices, gt_faces)["watertight"])
+        iou = volumetric_iou(gt_vertices, gt_faces, pred_vertices, usable, iou_stream, IOU_POINTS) if closed else nan
+    with timer.stage("self_intersections"):
+        crossings = _self_intersections(pred_vertices, usable, empty)
     result.update(
         gt_edge_points=-1 if gt_edge is None else int(gt_edge.sum()),
         pred_edge_points=-1 if pred_edge is None else int(pred_edge.sum()),
@@ -210,23 +231,33 @@ def evaluate(
         dropped_faces=int(len(pred_faces) - len(usable)),
     )
     result.update(validity)
+    result.update(crossings, iou=iou)
     result.update(gt_diagonal=gt_diagonal, edge_radius=radius, ef1_threshold=tau_e, scored=True)
     result["seconds"] = {**timer.seconds, "total_s": time.perf_counter() - t_start}
     return result
 
 
+def _self_intersections(vertices: np.ndarray, usable: np.ndarray, empty: bool) -> dict:
+    """:func:`self_intersections` of the usable faces; NaN counts for an empty prediction."""
+    if empty:
+        return {"self_intersecting_pairs": float("nan"), "self_intersecting_faces": float("nan"),
+                "self_intersections_skipped": ""}
+    return self_intersections(vertices, usable)
+
+
 def evaluate_without_gt(pred_vertices, pred_faces) -> dict:
     """What can be said of a prediction that has no GT (a point cloud reconstructed without a mesh
     beside it): ``scored`` False, ``empty_prediction`` (the rule of :func:`evaluate`),
-    ``dropped_faces`` and the validity columns of the prediction as given; no distance or edge
-    metric (they need a GT). Never raises."""
+    ``dropped_faces``, the validity columns of the prediction as given and its self-intersections
+    (as in :func:`evaluate`); no distance, IoU or edge metric (they need a GT). Never raises."""
     t_start = time.perf_counter()
     pred_vertices = np.asarray(pred_vertices, dtype=np.float64).reshape(-1, 3)
     pred_faces = np.asarray(pred_faces)
     pred_faces = pred_faces.astype(np.int64).reshape(-1, 3) if pred_faces.size else np.zeros((0, 3), dtype=np.int64)
     usable = _usable_faces(pred_vertices, pred_faces)
-    result = {"scored": False, "empty_prediction": not relative_area(pred_vertices, usable) >= MIN_RELATIVE_AREA,
-              "dropped_faces": int(len(pred_faces) - len(usable)), **mesh_validity(pred_vertices, pred_faces)}
+    empty = not relative_area(pred_vertices, usable) >= MIN_RELATIVE_AREA
+    result = {"scored": False, "empty_prediction": empty, "dropped_faces": int(len(pred_faces) - len(usable)),
+              **mesh_validity(pred_vertices, pred_faces), **_self_intersections(pred_vertices, usable, empty)}
     result["seconds"] = {"total_s": time.perf_counter() - t_start}
     return result
 
