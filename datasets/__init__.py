@@ -5,8 +5,9 @@
         shape = ds.load(name)            # may raise MeshError for this one shape only
 
 Registered datasets: ``builtin`` (default: 4 generated CAD-like shapes), ``abc``,
-``abc-nonmanifold``, ``meshes`` (any folder of mesh files) and ``pointclouds`` (point-cloud files
-with their GT meshes, for the reconstruct task).
+``abc-nonmanifold``, ``meshes`` (any folder of mesh files), ``pointclouds`` (point-cloud files
+with their GT meshes, for the reconstruct task) and ``rooms`` (Synthetic-Rooms-style scenes
+generated from a seed: floor, walls and CAD parts as one triangle soup).
 """
 
 from datasets.io import (
@@ -37,6 +38,7 @@ from datasets.registry import (
 from datasets import builtin as _builtin  # noqa: E402,F401
 from datasets import abc as _abc  # noqa: E402,F401
 from datasets import pointclouds as _pointclouds  # noqa: E402,F401
+from datasets import rooms as _rooms  # noqa: E402,F401
 
 __all__ = [
     "MESH_EXTENSIONS", "MeshError", "Normalization", "Shape", "canonical_transform", "classify_topology",
