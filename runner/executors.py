@@ -185,13 +185,14 @@ def _process_call(fn: Callable, spec, index: int):
     return fn(spec, progress)
 
 
-def worker_death(pool) -> str:
-    """How the dead worker of a broken process pool ended, in words: killed by a signal (SIGKILL is
-    what the kernel's out-of-memory killer sends) or an exit status. The pool's own termination of
-    its other workers (SIGTERM) is not the cause and is left out."""
-    processes = list(pool._processes.values())
+def worker_death(processes) -> str:
+    """How the dead worker among ``processes`` (every worker a broken process pool started: the
+    pool forgets its workers as it breaks, so the caller keeps them) ended, in words: killed by a
+    signal (SIGKILL is what the kernel's out-of-memory killer sends) or an exit status. The pool's
+    own termination of its other workers (SIGTERM) is not the cause and is left out."""
+    processes = list(processes)
     for process in processes:  # a broken pool ends all its workers; wait (bounded) until each is reaped
-        process.join(timeout=5)
+        process.join(timeout=30)
     codes = [p.exitcode for p in processes if p.exitcode not in (None, 0, -signal.SIGTERM)]
     if not codes:
         return "cause unknown"
@@ -246,9 +247,11 @@ class ProcessExecutor:
         suspects: deque = deque()
         attempts = [0] * len(specs)
         running: dict = {}
+        workers: dict = {}  # every process of the current pool, kept to say how a dead one ended
         while todo or suspects or running:
             if self._pool is None:
                 self._pool = self._new_pool()
+                workers = {}
             if suspects:
                 if not running:  # a suspect runs alone, so its crash is its own
                     i = suspects.popleft()
@@ -259,6 +262,7 @@ class ProcessExecutor:
                     i = todo.popleft()
                     attempts[i] += 1
                     running[self._pool.submit(_process_call, fn, specs[i], i)] = i
+            workers.update(self._pool._processes or {})
             done, _ = wait(list(running), timeout=0.25, return_when=FIRST_COMPLETED)
             self._drain(specs, on_stage)
             alone = len(running) == 1
@@ -285,7 +289,8 @@ class ProcessExecutor:
                 except Exception as exc:  # noqa: BLE001
                     outcome = exc
                 yield specs[i], outcome
-            death = worker_death(self._pool)
+            workers.update(self._pool._processes or {})
+            death = worker_death(workers.values())
             self._pool.shutdown(wait=False, cancel_futures=True)
             self._pool = None
             for i in broken:
