@@ -420,6 +420,47 @@ def sweep_plot(sweep: Sweep, key: str) -> bytes | None:
         return _svg(fig)
 
 
+def cost_plot(sweep: Sweep, key: str) -> bytes | None:
+    """One panel per headline metric against the mean seconds of the fits that ran (log x): a line
+    per series through the key's values, its 95% bootstrap band of the mean over shapes shaded,
+    each point labelled with its value. For a budget key (``budget.iterations``, ...), where the
+    x axis of :func:`sweep_plot` is the setting and this one its cost. SVG bytes; None when no
+    series has fit seconds at two values or more."""
+    stats = sweep.stats[key]
+    seconds = stats["mean"][FIT].unstack(SERIES)
+    fitted = [s for s in sweep.series if s in seconds.columns and seconds[s].notna().sum() >= 2]
+    if not sweep.metrics or not fitted:
+        return None
+    colors = method_colors(list(dict.fromkeys(sweep.method_of.values())))
+    labels = [value_text(v) for v in sweep.spec[key]]
+    ncols = min(3, len(sweep.metrics))
+    nrows = math.ceil(len(sweep.metrics) / ncols)
+    with matplotlib.rc_context(STYLE):
+        fig = Figure(figsize=(3.4 * ncols + 0.6, 2.6 * nrows + 0.3))
+        axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
+        for ax, metric in zip(axes, sweep.metrics):
+            mean, low, high = (stats[stat][metric.column].unstack(SERIES) for stat in ("mean", "ci_low", "ci_high"))
+            for s in fitted:
+                x, ok = seconds[s], seconds[s].notna() & mean[s].notna()
+                color = colors[sweep.method_of[s]]
+                ax.plot(x[ok], mean[s][ok], color=color, marker="o", ms=4, lw=1.8, label=plot_label(s))
+                ax.fill_between(x[ok], low[s][ok], high[s][ok], color=color, alpha=0.15, lw=0)
+                for position in np.flatnonzero(ok.to_numpy()):
+                    ax.annotate(plot_label(labels[int(x.index[position])]), (x.iloc[position], mean[s].iloc[position]),
+                                fontsize=6, xytext=(2, 2), textcoords="offset points", color=color)
+            ax.set_xscale("log")
+            ax.set_title(metric_header(metric))
+            ax.set_xlabel("mean fit seconds")
+        for ax in axes[len(sweep.metrics):]:
+            ax.set_visible(False)
+        handles, names = axes[0].get_legend_handles_labels()
+        if handles:
+            fig.legend(handles, names, loc="upper center", ncol=len(names), frameon=False,
+                       bbox_to_anchor=(0.5, 1.0 + 0.3 / (2.6 * nrows)))
+        fig.tight_layout()
+        return _svg(fig)
+
+
 def sweep_html(sweep: Sweep) -> str:
     """The report's sweep section: per key its plot, mean table and note (medians folded), then the
     table over every combination."""
@@ -427,6 +468,8 @@ def sweep_html(sweep: Sweep) -> str:
     for group in [*sweep.spec, *([COMBINED] if COMBINED in sweep.stats else [])]:
         mean, median = sweep.tables[f"sweep-{group}"], sweep.tables[f"sweep-{group}-median"]
         plot = plot_html(sweep_plot, sweep, group, alt=f"metrics against {group}") if group in sweep.spec else ""
+        if group.startswith("budget."):  # a budget setting: its cost axis too
+            plot += plot_html(cost_plot, sweep, group, alt=f"metrics against the fit seconds of each {group}")
         parts.append(f"<h3>{esc(mean.title)}</h3>{plot}{table_html(mean)}{notes_html(mean)}"
                      f"<details><summary>{esc(median.title)}</summary>{table_html(median)}</details>")
     return "".join(parts)

@@ -214,3 +214,20 @@ def test_sweep_csv_intervals_and_p_values(noisy, tmp_path):
     assert np.isfinite(csv.loc[(0.5, "sals (oracle)", "cd"), "ci_low"])  # a reference still has its interval
     assert csv.loc[[(0.5, "sals (oracle)", "cd"), (0.5, "sals", "n_faces")], "p_vs_best"].isna().all()
     assert csv.loc[(0.5, "sals", "n_faces"), ["ci_low", "ci_high"]].isna().all()
+
+
+def test_a_budget_sweep_plots_each_metric_against_its_fit_seconds():
+    from reports.sweep import cost_plot
+
+    context = dict(CONTEXT, methods=["sals", "sdf"], shapes=SHAPES, seeds=[0], sweep={"budget.iterations": [750, 3000]})
+    rows = [job(shape, m, "neural", cd, **{"sweep.budget.iterations": v}) | {"fit_s": seconds}
+            for m, scale in (("sals", 1.0), ("sdf", 2.0)) for v, seconds in ((750, 6.0), (3000, 24.0))
+            for shape, cd in zip(SHAPES, (0.002 * scale * 3000 / v, 0.004 * scale * 3000 / v))]
+    sweep = build_sweep(pd.DataFrame(rows), context)
+    seconds = sweep.stats["budget.iterations"]["mean"]["fit_s"].unstack("@series")
+    assert seconds.loc[0, "sals"] == 6.0 and seconds.loc[1, "sdf"] == 24.0  # the x of each point: mean fit seconds
+    assert cost_plot(sweep, "budget.iterations").startswith(b"<?xml")
+    assert cost_plot(build_sweep(threshold_results(), SWEEP), "sals.o_threshold") is not None  # fits ran there too
+    oracle = threshold_results().assign(fit_s=np.nan)
+    assert cost_plot(build_sweep(oracle, SWEEP), "sals.o_threshold") is None  # nothing fitted: no cost axis
+    assert 'metrics against the fit seconds' in reports.sweep.sweep_html(sweep)
