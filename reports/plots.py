@@ -62,6 +62,28 @@ def _svg(fig: Figure) -> bytes:
     return buffer.getvalue()
 
 
+def metric_panels(count: int) -> tuple[Figure, np.ndarray, int]:
+    """(figure, axes, rows) of a grid of ``count`` panels, at most 3 a row (call inside
+    ``matplotlib.rc_context(STYLE)``); :func:`panels_svg` finishes it."""
+    ncols = min(3, count)
+    nrows = math.ceil(count / ncols)
+    fig = Figure(figsize=(3.4 * ncols + 0.6, 2.6 * nrows + 0.3))
+    return fig, fig.subplots(nrows, ncols, squeeze=False).ravel(), nrows
+
+
+def panels_svg(fig: Figure, axes: np.ndarray, used: int, nrows: int) -> bytes:
+    """SVG bytes of a :func:`metric_panels` grid: the panels past ``used`` hidden, one legend above
+    (the first panel's lines), laid out tight."""
+    for ax in axes[used:]:
+        ax.set_visible(False)
+    handles, names = axes[0].get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, names, loc="upper center", ncol=min(len(names), 7), frameon=False,
+                   bbox_to_anchor=(0.5, 1.0 + 0.3 / (2.6 * nrows)))
+    fig.tight_layout()
+    return _svg(fig)
+
+
 def _plotted(metrics: list) -> list:
     return [m for m in metrics if m.column in PLOTTED] or metrics[:3]
 

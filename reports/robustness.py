@@ -26,19 +26,17 @@ robustness section (:func:`robustness_html`).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import matplotlib
 import numpy as np
 import pandas as pd
-from matplotlib.figure import Figure
 
 from benchmark.corruptions import KINDS
 from reports.frames import sensors_note
 from reports.html import esc, notes_html, plot_html, table_html
-from reports.plots import STYLE, _svg, plot_label
+from reports.plots import STYLE, metric_panels, panels_svg, plot_label
 from reports.protocol import check_context, protocol_caption, report_title, sweep_spec
 from reports.style import method_colors
 from reports.sweep import PREFIX, SERIES, Sweep, build_sweep, sweep_frame
@@ -166,11 +164,8 @@ def robustness_plot(robustness: Robustness, column: str) -> bytes | None:
     if metric is None:
         return None
     colors = method_colors(list(dict.fromkeys(first.method_of.values())))
-    ncols = min(3, len(kinds))
-    nrows = math.ceil(len(kinds) / ncols)
     with matplotlib.rc_context(STYLE):
-        fig = Figure(figsize=(3.4 * ncols + 0.6, 2.6 * nrows + 0.5))
-        axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
+        fig, axes, nrows = metric_panels(len(kinds))
         for ax, kind in zip(axes, kinds):
             sweep = robustness.kinds[kind]
             means = _means(sweep, column)
@@ -182,14 +177,7 @@ def robustness_plot(robustness: Robustness, column: str) -> bytes | None:
             ax.set_title(plot_label(kind))
             ax.set_xlabel("level")
             ax.set_ylabel(plot_label(metric_header(metric)))
-        for ax in axes[len(kinds):]:
-            ax.set_visible(False)
-        handles, names = axes[0].get_legend_handles_labels()
-        if handles:
-            fig.legend(handles, names, loc="upper center", ncol=min(len(names), 7), frameon=False,
-                       bbox_to_anchor=(0.5, 1.0 + 0.4 / (2.6 * nrows)))
-        fig.tight_layout()
-        return _svg(fig)
+        return panels_svg(fig, axes, len(kinds), nrows)
 
 
 def robustness_html(robustness: Robustness) -> str:

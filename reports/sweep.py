@@ -38,7 +38,6 @@ scripts); the report's sweep section (:func:`sweep_html`).
 
 from __future__ import annotations
 
-import math
 import numbers
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -46,12 +45,11 @@ from pathlib import Path
 import matplotlib
 import numpy as np
 import pandas as pd
-from matplotlib.figure import Figure
 
 from benchmark.schema import columns as schema_columns
 from reports.frames import as_bool, check_results, numeric, without_unscored
 from reports.html import esc, notes_html, plot_html, table_html
-from reports.plots import STYLE, _svg, plot_label
+from reports.plots import STYLE, metric_panels, panels_svg, plot_label
 from reports.protocol import check_context, headline_metrics, protocol_caption, report_title, sweep_spec
 from reports.significance import mean_intervals
 from reports.statistics import TIE, Statistics, Tests, interval_text, legend, tests_against_best
@@ -392,12 +390,9 @@ def sweep_plot(sweep: Sweep, key: str) -> bytes | None:
         return None
     x = np.arange(len(values), dtype=float) if scale == "categorical" else np.asarray(values, dtype=float)
     colors = method_colors(list(dict.fromkeys(sweep.method_of.values())))
-    ncols = min(3, len(sweep.metrics))
-    nrows = math.ceil(len(sweep.metrics) / ncols)
     means = sweep.stats[key]["mean"]
     with matplotlib.rc_context(STYLE):
-        fig = Figure(figsize=(3.4 * ncols + 0.6, 2.6 * nrows + 0.3))
-        axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
+        fig, axes, nrows = metric_panels(len(sweep.metrics))
         for ax, metric in zip(axes, sweep.metrics):
             lines = means[metric.column].unstack(SERIES)
             for s in [s for s in sweep.series if s in lines.columns]:
@@ -410,14 +405,7 @@ def sweep_plot(sweep: Sweep, key: str) -> bytes | None:
                 ax.set_xticks(x, [plot_label(value_text(v)) for v in values])
             ax.set_title(metric_header(metric))
             ax.set_xlabel(plot_label(key))
-        for ax in axes[len(sweep.metrics):]:
-            ax.set_visible(False)
-        handles, names = axes[0].get_legend_handles_labels()
-        if handles:
-            fig.legend(handles, names, loc="upper center", ncol=len(names), frameon=False,
-                       bbox_to_anchor=(0.5, 1.0 + 0.3 / (2.6 * nrows)))
-        fig.tight_layout()
-        return _svg(fig)
+        return panels_svg(fig, axes, len(sweep.metrics), nrows)
 
 
 def cost_plot(sweep: Sweep, key: str) -> bytes | None:
@@ -433,11 +421,8 @@ def cost_plot(sweep: Sweep, key: str) -> bytes | None:
         return None
     colors = method_colors(list(dict.fromkeys(sweep.method_of.values())))
     labels = [value_text(v) for v in sweep.spec[key]]
-    ncols = min(3, len(sweep.metrics))
-    nrows = math.ceil(len(sweep.metrics) / ncols)
     with matplotlib.rc_context(STYLE):
-        fig = Figure(figsize=(3.4 * ncols + 0.6, 2.6 * nrows + 0.3))
-        axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
+        fig, axes, nrows = metric_panels(len(sweep.metrics))
         for ax, metric in zip(axes, sweep.metrics):
             mean, low, high = (stats[stat][metric.column].unstack(SERIES) for stat in ("mean", "ci_low", "ci_high"))
             for s in fitted:
@@ -451,14 +436,7 @@ def cost_plot(sweep: Sweep, key: str) -> bytes | None:
             ax.set_xscale("log")
             ax.set_title(metric_header(metric))
             ax.set_xlabel("mean fit seconds")
-        for ax in axes[len(sweep.metrics):]:
-            ax.set_visible(False)
-        handles, names = axes[0].get_legend_handles_labels()
-        if handles:
-            fig.legend(handles, names, loc="upper center", ncol=len(names), frameon=False,
-                       bbox_to_anchor=(0.5, 1.0 + 0.3 / (2.6 * nrows)))
-        fig.tight_layout()
-        return _svg(fig)
+        return panels_svg(fig, axes, len(sweep.metrics), nrows)
 
 
 def sweep_html(sweep: Sweep) -> str:
