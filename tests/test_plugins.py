@@ -38,6 +38,7 @@ def test_the_example_plugin_reconstructs_a_closed_outward_hull(example):
     assert 0.9 * 4 / 3 * np.pi < volume < 4 / 3 * np.pi  # positive: outward faces; below the ball's volume
 
 
+@pytest.mark.slow
 def test_the_example_plugin_is_a_row_of_a_run(tmp_path):
     out = tmp_path / "run"
     try:

@@ -79,6 +79,7 @@ def test_the_gt_itself_scores_at_the_floor_and_a_shifted_sphere_the_analytic_shi
     assert jobs.loc["sphere", "cd"] == pytest.approx(shifted_sphere_cd(0.995, SHIFT * 1.99 / 6.0), rel=0.03)
 
 
+@pytest.mark.slow
 def test_canonical_predictions_score_as_the_same_meshes_in_the_original_frame(shapes, tmp_path):
     from datasets import get_dataset
 

@@ -43,6 +43,7 @@ def test_a_scan_input_is_on_the_surface_with_a_sensor_per_point_and_the_same_for
     assert np.array_equal(points, again.points)  # the job's sampler stream: what any method of the job gets
 
 
+@pytest.mark.slow
 def test_a_scan_run_gives_poisson_its_sensors_and_says_so(tmp_path):
     out = tmp_path / "run"
     code = main(["--task", "reconstruct", "--methods", "poisson", "--limit", "1", "--grid", "32", "--pc-points",

@@ -5,6 +5,7 @@ shapes no method's weights saw."""
 from __future__ import annotations
 
 import pandas as pd
+import pytest
 import trimesh
 
 from methods.base import registered_method
@@ -40,6 +41,7 @@ class FakeSeen(FakeSDF):
         return TrainingRecord("test-only weights: ABC 00000003", abc_ranges=((3, 3),))
 
 
+@pytest.mark.slow
 def test_rows_say_which_shapes_were_seen_and_the_summary_gives_the_unseen_means(fakes, tmp_path):
     meshes = tmp_path / "meshes"
     meshes.mkdir()

@@ -112,7 +112,7 @@ def evaluate(
         ``f1_*/precision_*/recall_*`` per threshold, ``dist_median, dist_p90, dist_p99,
         hausdorff`` (the distribution of CD's nearest distances, both directions pooled:
         :func:`~benchmark.metrics.distances.distance_distribution`), ``iou`` (volumetric IoU on
-        :data:`~benchmark.metrics.iou.IOU_POINTS` points, :func:`~benchmark.metrics.iou.volumetric_iou`;
+        min(:data:`~benchmark.metrics.iou.IOU_POINTS`, n) points, :func:`~benchmark.metrics.iou.volumetric_iou`;
         NaN unless the GT and the prediction are both watertight with no dropped face),
         ``ecd, ef1, eprecision, erecall, ecd_flag``,
         ``gt_edge_points, pred_edge_points`` (counts; -1 = not computed), ``edge_search_skipped``
@@ -220,7 +220,8 @@ def evaluate(
     with timer.stage("iou"):
         closed = (not empty and validity["watertight"] and len(usable) == len(pred_faces)
                   and mesh_validity(gt_vertices, gt_faces)["watertight"])
-        iou = volumetric_iou(gt_vertices, gt_faces, pred_vertices, usable, iou_stream, IOU_POINTS) if closed else nan
+        iou = (volumetric_iou(gt_vertices, gt_faces, pred_vertices, usable, iou_stream, min(IOU_POINTS, n))
+               if closed else nan)
     with timer.stage("self_intersections"):
         crossings = _self_intersections(pred_vertices, usable, empty)
     result.update(
