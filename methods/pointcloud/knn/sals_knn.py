@@ -51,19 +51,39 @@ class SALSKNNMethod(KNNTrainedMethod):
 
     def reconstruct(self, points, N, device=None, seed=0, model=None) -> Extraction:
         model, device = self.network_on_device(model, device)
-        k = knn_k(model)
         with stage("band"):
             ids = band_edges(points, N, self.params["band"] * spacing(N))
-            segments = edge_inputs(N, ids).reshape(-1, 2, 3)
+        queried = len(ids)
+        ids, s, normals = self.edge_field(points, N, ids, model, device)
+        mesh = edge_dual_contouring(N, ids, s, normals, qef_cutoff=self.params["qef_cutoff"], faces=self.params["faces"])
+        return Extraction(mesh.vertices, mesh.faces, info={"queried_edges": int(queried), "intersected_edges": int(len(ids))})
+
+    def neighbour_count(self, model) -> int:
+        """The K input points each edge query reads (the network's training K)."""
+        return knn_k(model)
+
+    def edge_field(self, points, N, ids, model, device, input_scale: float = 1.0):
+        """The network on the grid edges ``ids`` (flat ids of the N grid) with their K nearest of
+        ``points``: (the intersected ids, their s (float32), their unit normals or None).
+
+        ``input_scale`` multiplies every coordinate the network sees (segments and points alike;
+        the K nearest are the same): a grid finer than the training grid by that factor, in a
+        frame where the cloud has the training density (:mod:`methods.pointcloud.blocks`)."""
+        model, device = self.network_on_device(model, device)
+        k = knn_k(model)
+        segments = edge_inputs(N, ids).reshape(-1, 2, 3)
+        cloud = np.asarray(points)
+        if input_scale != 1.0:
+            segments = segments * np.float32(input_scale)
+            cloud = cloud * input_scale
         with stage("field"):
-            out, _ = evaluate_knn(model, segments, points, k, device)
+            out, _ = evaluate_knn(model, segments, cloud, k, device)
             hit = expit(out[:, 0].astype(np.float64)) > self.params["o_threshold"]
             ids, segments = ids[hit], segments[hit]
             s = expit(out[hit, 1].astype(np.float64)).astype(np.float32)
         normals = None
         if self.params["normals"] and len(ids):
             with stage("normals"):
-                _, grad = evaluate_knn(model, segments, points, k, device, grad_output=1)
+                _, grad = evaluate_knn(model, segments, cloud, k, device, grad_output=1)
                 normals = nearer_endpoint_normals(s, grad.reshape(-1, 6))
-        mesh = edge_dual_contouring(N, ids, s, normals, qef_cutoff=self.params["qef_cutoff"], faces=self.params["faces"])
-        return Extraction(mesh.vertices, mesh.faces, info={"queried_edges": int(len(hit)), "intersected_edges": int(len(ids))})
+        return ids, s, normals
