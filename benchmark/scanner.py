@@ -1,13 +1,15 @@
 """A virtual range scanner: point clouds as a set of range sensors would see a triangle mesh.
 
-The project's one owner of "a scan of a mesh". Three functions, arrays in and arrays out:
+The project's one owner of "a scan of a mesh". Four functions, arrays in and arrays out:
 
 * :func:`sphere_sensors` -- sensor positions on a sphere about the origin (Fibonacci layout);
 * :func:`range_scan` -- the first hits of a regular angular grid of rays from each sensor;
-* :func:`scan_cloud` -- a scan of (about) ``n`` points: enough rays, then a uniform subsample.
+* :func:`scan_cloud` -- a scan of (about) ``n`` points: enough rays, then a uniform subsample;
+* :func:`cast_rays` -- the first hits of rays the caller lays out (origins and directions).
 
 Frame and units: the mesh's own (the canonical frame of :mod:`datasets.io` in the benchmark: the
-bounding box centred at the origin, largest side 1.99). Every sensor looks at the origin.
+bounding box centred at the origin, largest side 1.99). Every sensor of :func:`range_scan` looks at
+the origin.
 
 Ray grid of one sensor ``s`` at distance ``d = |s|`` (:func:`range_scan`): the sensor frame is
 ``f = -s / d`` (forward, towards the origin), ``u = unit(f x h)`` (right) and ``w = u x f`` (up), with
@@ -35,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Scan", "sphere_sensors", "range_scan", "scan_cloud", "DEFAULT_GRAZING_DROPOUT_DEG",
+__all__ = ["Scan", "sphere_sensors", "range_scan", "scan_cloud", "cast_rays", "DEFAULT_GRAZING_DROPOUT_DEG",
            "DEFAULT_SENSORS", "DEFAULT_DISTANCE"]
 
 #: Hits whose ray makes more than this angle (degrees) with the face normal are dropped by default.
@@ -54,6 +56,8 @@ DEFAULT_DISTANCE = 3.0
 _PILOT_RAYS = 32 * 32
 #: Factor on the rays a hit-fraction estimate asks for, so one more cast usually suffices.
 _RAY_MARGIN = 1.1
+#: Rays :func:`cast_rays` hands embree at once (bounds the float64 arrays of one batch).
+_CAST_CHUNK = 2 ** 20
 
 
 @dataclass(frozen=True, eq=False)
@@ -173,53 +177,64 @@ def _ray_directions(sensor: np.ndarray, radius: float, k: int) -> np.ndarray:
     return np.cos(el) * np.cos(az) * f + np.cos(el) * np.sin(az) * u + np.sin(el) * w
 
 
+def _min_cosine(grazing_dropout_deg) -> float:
+    """The least ``|cos|`` of a kept hit for a grazing dropout angle in degrees (None: 0, keep all)."""
+    if grazing_dropout_deg is None:
+        return 0.0
+    if not 0.0 < grazing_dropout_deg <= 90.0:
+        raise ValueError(f"grazing_dropout_deg must lie in (0, 90] or be None, got {grazing_dropout_deg}")
+    return math.cos(math.radians(grazing_dropout_deg))
+
+
+def _first_hits(scene, V, F, origins, dirs, min_cos) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The first hit of each ray ``origins[i] + t dirs[i]`` (unit ``dirs``; module docstring):
+    (ray rows (h,), points (h, 3), face ids (h,), |cos| (h,)) of the kept hits, in ray order."""
+    res = scene.run(np.ascontiguousarray(origins, dtype=np.float32), np.ascontiguousarray(dirs, dtype=np.float32),
+                    output=1)
+    hit = np.flatnonzero(res["primID"] >= 0)
+    face = res["primID"][hit].astype(np.int64)
+    s, d = origins[hit], dirs[hit]
+    tri = V[F[face]]
+    a, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    normal = np.cross(e1, e2)
+    nlen = np.linalg.norm(normal, axis=1)
+    denom = np.einsum("ij,ij->i", d, normal)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cosine = np.abs(denom) / nlen
+        t = np.einsum("ij,ij->i", a - s, normal) / denom
+    ok = (nlen > 0) & (denom != 0) & np.isfinite(t) & (cosine >= min_cos)
+    hit, face, s, d, a, e1, e2, t, cosine = hit[ok], face[ok], s[ok], d[ok], a[ok], e1[ok], e2[ok], t[ok], cosine[ok]
+    p = s + t[:, None] * d
+    # barycentric coordinates of p; clip into the triangle where float32 traversal was off
+    q = p - a
+    d00 = np.einsum("ij,ij->i", e1, e1)
+    d01 = np.einsum("ij,ij->i", e1, e2)
+    d11 = np.einsum("ij,ij->i", e2, e2)
+    d20 = np.einsum("ij,ij->i", q, e1)
+    d21 = np.einsum("ij,ij->i", q, e2)
+    den = d00 * d11 - d01 * d01
+    beta = (d11 * d20 - d01 * d21) / den
+    gamma = (d00 * d21 - d01 * d20) / den
+    bary = np.stack([1.0 - beta - gamma, beta, gamma], axis=1)
+    out = np.any(bary < 0.0, axis=1)
+    if np.any(out):
+        b = np.maximum(bary[out], 0.0)
+        b /= b.sum(axis=1, keepdims=True)
+        p[out] = a[out] + b[:, 1:2] * e1[out] + b[:, 2:3] * e2[out]
+    return hit, p, face, cosine
+
+
 def _cast(scene, V, F, radius, sensors, rays_per_sensor, grazing_dropout_deg) -> Scan:
     """The clean hits of every sensor's grid (module docstring), grazing hits dropped."""
     rays_per_sensor = int(rays_per_sensor)
     if rays_per_sensor < 1:
         raise ValueError(f"rays_per_sensor must be >= 1, got {rays_per_sensor}")
     k = math.isqrt(rays_per_sensor - 1) + 1  # ceil(sqrt(rays_per_sensor))
-    if grazing_dropout_deg is None:
-        min_cos = 0.0
-    else:
-        if not 0.0 < grazing_dropout_deg <= 90.0:
-            raise ValueError(f"grazing_dropout_deg must lie in (0, 90] or be None, got {grazing_dropout_deg}")
-        min_cos = math.cos(math.radians(grazing_dropout_deg))
+    min_cos = _min_cosine(grazing_dropout_deg)
     parts = []
     for sid, s in enumerate(sensors):  # one sensor at a time: arrays of k^2 rays
         dirs = _ray_directions(s, radius, k)
-        res = scene.run(np.ascontiguousarray(np.broadcast_to(s.astype(np.float32), dirs.shape)),
-                        np.ascontiguousarray(dirs, dtype=np.float32), output=1)
-        hit = np.flatnonzero(res["primID"] >= 0)
-        face = res["primID"][hit].astype(np.int64)
-        d = dirs[hit]
-        tri = V[F[face]]
-        a, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-        normal = np.cross(e1, e2)
-        nlen = np.linalg.norm(normal, axis=1)
-        denom = np.einsum("ij,ij->i", d, normal)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            cosine = np.abs(denom) / nlen
-            t = np.einsum("ij,ij->i", a - s, normal) / denom
-        ok = (nlen > 0) & (denom != 0) & np.isfinite(t) & (cosine >= min_cos)
-        hit, face, d, a, e1, e2, t, cosine = hit[ok], face[ok], d[ok], a[ok], e1[ok], e2[ok], t[ok], cosine[ok]
-        p = s + t[:, None] * d
-        # barycentric coordinates of p; clip into the triangle where float32 traversal was off
-        q = p - a
-        d00 = np.einsum("ij,ij->i", e1, e1)
-        d01 = np.einsum("ij,ij->i", e1, e2)
-        d11 = np.einsum("ij,ij->i", e2, e2)
-        d20 = np.einsum("ij,ij->i", q, e1)
-        d21 = np.einsum("ij,ij->i", q, e2)
-        den = d00 * d11 - d01 * d01
-        beta = (d11 * d20 - d01 * d21) / den
-        gamma = (d00 * d21 - d01 * d20) / den
-        bary = np.stack([1.0 - beta - gamma, beta, gamma], axis=1)
-        out = np.any(bary < 0.0, axis=1)
-        if np.any(out):
-            b = np.maximum(bary[out], 0.0)
-            b /= b.sum(axis=1, keepdims=True)
-            p[out] = a[out] + b[:, 1:2] * e1[out] + b[:, 2:3] * e2[out]
+        _, p, face, cosine = _first_hits(scene, V, F, np.broadcast_to(s, dirs.shape), dirs, min_cos)
         parts.append((p, np.full(len(p), sid, dtype=np.int64), face, cosine))
     points = np.concatenate([x[0] for x in parts])
     sensor_ids = np.concatenate([x[1] for x in parts])
@@ -287,6 +302,59 @@ def range_scan(vertices: np.ndarray, faces: np.ndarray, sensors: np.ndarray, ray
     S = _as_sensors(sensors)
     scene = _embree_scene(V, F)
     return _add_range_noise(_cast(scene, V, F, radius, S, rays_per_sensor, grazing_dropout_deg), noise, rng)
+
+
+def cast_rays(vertices: np.ndarray, faces: np.ndarray, origins: np.ndarray, directions: np.ndarray,
+              grazing_dropout_deg: float | None = DEFAULT_GRAZING_DROPOUT_DEG) -> Scan:
+    """The first hit of each of the rays ``origins[i] + t directions[i]``, ``t >= 0`` (arbitrary rays).
+
+    The same intersection as :func:`range_scan` (module docstring: embree's first triangle, the
+    point recomputed in float64 on it), for rays the caller lays out (a rotating LiDAR's beams, a
+    line of sight to a point). Rays are cast ``2**20`` at a time.
+
+    Parameters
+    ----------
+    vertices, faces : array_like
+        The mesh (as in :func:`range_scan`; any frame and unit, scanned two-sided).
+    origins : (R, 3) array_like
+        Ray origins, in the mesh's frame.
+    directions : (R, 3) array_like
+        Ray directions, any non-zero length: each is divided by its norm first.
+    grazing_dropout_deg : float or None
+        Hits whose ray makes an angle above this (degrees, in (0, 90]) with the face normal are
+        dropped; None keeps them all. Default :data:`DEFAULT_GRAZING_DROPOUT_DEG` (85).
+
+    Returns
+    -------
+    Scan
+        One row per kept hit, in ray order: ``sensor_ids`` is the ray's row in ``origins`` (so
+        ``sensors = origins[sensor_ids]``), ``points`` the hit (no noise: add it along
+        ``directions[sensor_ids]``), its distance from the origin the hit's range.
+    """
+    V, F, _ = _mesh_arrays(vertices, faces)
+    S = np.ascontiguousarray(origins, dtype=np.float64)
+    D = np.ascontiguousarray(directions, dtype=np.float64)
+    if S.ndim != 2 or S.shape[1] != 3 or D.shape != S.shape:
+        raise ValueError(f"origins and directions must both have shape (R, 3), got {S.shape} and {D.shape}")
+    if not (np.all(np.isfinite(S)) and np.all(np.isfinite(D))):
+        raise ValueError("ray origins and directions must be finite")
+    length = np.linalg.norm(D, axis=1)
+    if np.any(length == 0):
+        raise ValueError("a ray direction is zero")
+    D = D / length[:, None]
+    min_cos = _min_cosine(grazing_dropout_deg)
+    scene = _embree_scene(V, F)
+    parts = []
+    for start in range(0, len(S), _CAST_CHUNK):
+        rows, p, face, cosine = _first_hits(scene, V, F, S[start:start + _CAST_CHUNK], D[start:start + _CAST_CHUNK],
+                                            min_cos)
+        parts.append((rows + start, p, face, cosine))
+    rows = np.concatenate([x[0] for x in parts]) if parts else np.zeros(0, dtype=np.int64)
+    points = np.concatenate([x[1] for x in parts]) if parts else np.zeros((0, 3))
+    face_ids = np.concatenate([x[2] for x in parts]) if parts else np.zeros(0, dtype=np.int64)
+    cosines = np.concatenate([x[3] for x in parts]) if parts else np.zeros(0)
+    return Scan(points=points, sensors=S[rows], sensor_ids=rows.astype(np.int64), face_ids=face_ids,
+                ray_cosines=cosines)
 
 
 def scan_cloud(vertices: np.ndarray, faces: np.ndarray, n: int, rng: np.random.Generator,

@@ -6,8 +6,9 @@
 
 Registered datasets: ``builtin`` (default: 4 generated CAD-like shapes), ``abc``,
 ``abc-nonmanifold``, ``meshes`` (any folder of mesh files), ``pointclouds`` (point-cloud files
-with their GT meshes, for the reconstruct task) and ``rooms`` (Synthetic-Rooms-style scenes
-generated from a seed: floor, walls and CAD parts as one triangle soup).
+with their GT meshes, for the reconstruct task), ``rooms`` (Synthetic-Rooms-style scenes
+generated from a seed: floor, walls and CAD parts as one triangle soup) and ``street`` (a street
+scanned by a rotating multi-beam LiDAR along its centreline; the GT is what the sensor could see).
 """
 
 from datasets.io import (
@@ -39,6 +40,7 @@ from datasets import builtin as _builtin  # noqa: E402,F401
 from datasets import abc as _abc  # noqa: E402,F401
 from datasets import pointclouds as _pointclouds  # noqa: E402,F401
 from datasets import rooms as _rooms  # noqa: E402,F401
+from datasets import street as _street  # noqa: E402,F401
 
 __all__ = [
     "MESH_EXTENSIONS", "MeshError", "Normalization", "Shape", "canonical_transform", "classify_topology",
