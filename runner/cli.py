@@ -77,11 +77,14 @@ def build_parser() -> argparse.ArgumentParser:
     setting("pc_points", metavar="P")
     setting("pc_noise", metavar="SIGMA")
     setting("pc_corruption", metavar="NAME")
+    setting("pc_blocks", metavar="B")
+    setting("pc_scene_grid", metavar="N")
     setting("train_dirs", action="append", metavar="DIR")
     setting("methods", nargs="+", metavar="METHOD")
     setting("dataset", metavar="NAME")
     setting("data_dir", metavar="DIR")
     setting("list_file", metavar="FILE")
+    setting("dataset_params", action="append", metavar="NAME=VALUE")
     setting("limit", metavar="N")
     setting("mode", choices=settings["mode"].choices)
     setting("budget", metavar="NAME")
@@ -123,7 +126,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 #: RunConfig fields whose option is not ``--`` + the field name with dashes.
 _FLAGS = {"list_file": "--list", "seeds": "--seed", "plugins": "--plugin", "train_dirs": "--train-dir",
-          "method_params": "--method-param", "budget_params": "--budget-param"}
+          "method_params": "--method-param", "budget_params": "--budget-param",
+          "dataset_params": "--dataset-option"}
 
 
 def flag_of(field: str) -> str:
@@ -179,6 +183,8 @@ def _overrides(args: argparse.Namespace, plugins: Sequence[str]) -> dict[str, An
         given["method_params"] = parse_method_params(given["method_params"], given.get("plugins", plugins))
     if "budget_params" in given:
         given["budget_params"] = _key_values(given["budget_params"], "--budget-param", "NAME=VALUE (e.g. iterations=2000)")
+    if "dataset_params" in given:
+        given["dataset_params"] = _key_values(given["dataset_params"], "--dataset-option", "NAME=VALUE (e.g. length=100)")
     if "sweep" in given:
         from runner.sweep import split_items
 

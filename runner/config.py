@@ -130,10 +130,23 @@ class RunConfig:
         "samples, the paper's), scan (a clean virtual range scan: 10 sensors, per-point sensor positions), or a "
         "scan corrupted at level 1-3: noise-L, outliers-L, missing-L, density-L, misalign-L (docs/PROTOCOL.md, "
         "'Input clouds')", sweep="pc_corruption", choices=CORRUPTIONS)
+    pc_blocks: int = _setting(
+        "identity", 0, "reconstruct task: reconstruct block by block, blocks of B grid points per axis, one task "
+        "per block on the executor, finished blocks kept across runs (0: the whole grid at once, default). "
+        "sals-knn by edges (its mesh equals the whole grid's); any other method by the window of --grid points "
+        "centred on each block (docs/PROTOCOL.md, 'Block-wise reconstruction')", sweep="pc_blocks", ge=0)
+    pc_scene_grid: int = _setting(
+        "identity", 0, "reconstruct task with --pc-blocks: points per axis of the scene's grid over the canonical "
+        "cube (0: --grid). A finer grid reconstructs the scene at --grid's spacing on a (N-1)/(grid-1) times "
+        "larger scene: the networks see the cloud scaled by that factor (POCO's rule: pick N so the scaled "
+        "cloud's mean neighbour distance is the training clouds')", sweep="pc_scene_grid", ge=0)
     train_dirs: tuple[str, ...] | None = _setting(
         "identity", None, "reconstruct task: a folder of extra training meshes for the learned methods (repeatable; "
         "default: ../shared/data/thingi10k where it exists); the built-in training parts are always included",
         kind=tuple, item=str)
+    dataset_params: Mapping[str, Any] = _setting(
+        "identity", {}, "an option of the dataset, e.g. length=100 for street or count=20 for rooms (repeatable; "
+        "the dataset checks the name and the value)", kind=dict)
     budget_params: Mapping[str, Any] = _setting(
         "identity", {}, "override a value of the budget, e.g. num_samples=500000 or iterations=2000 (repeatable; "
         "typed and range-checked; recorded in config.json and every table caption)", kind=dict)
@@ -249,6 +262,13 @@ class RunConfig:
         if self.task != "reconstruct" and (self.pc_points != DEFAULT_PC_POINTS or self.pc_noise != 0
                                            or self.pc_corruption != "uniform"):
             raise ConfigError("--pc-points, --pc-noise and --pc-corruption apply to --task reconstruct")
+        if (self.pc_blocks or self.pc_scene_grid) and self.task != "reconstruct":
+            raise ConfigError("--pc-blocks and --pc-scene-grid apply to --task reconstruct")
+        if self.pc_scene_grid and not self.pc_blocks:
+            raise ConfigError("--pc-scene-grid is the grid of a block-wise reconstruction: give --pc-blocks too")
+        if self.pc_scene_grid and self.pc_scene_grid < self.grid:
+            raise ConfigError(f"--pc-scene-grid {self.pc_scene_grid} is coarser than --grid {self.grid}: a scene "
+                              f"grid is at least the training grid")
         if self.pc_noise != 0 and (self.pc_corruption != "uniform" or "pc_corruption" in self.sweep):
             raise ConfigError("--pc-noise adds Gaussian noise to uniform samples; for a scan use --pc-corruption "
                               "noise-1, noise-2 or noise-3 (noise along the sensor's rays)")

@@ -131,6 +131,12 @@ def run(plan: Plan, run_dir: RunDirectory, record: dict, executor=None) -> RunOu
     skipped = total - len(todo)
     print(f"salsbench: {len(jobs)} jobs + {len(floors)} floor tasks, {skipped} already done, run dir {run_dir.path}",
           file=sys.stderr, flush=True)
+    blockwise = [t for t in todo if t.kind == "job" and t.pc_blocks]
+    if blockwise:
+        from runner.blocks import run_blocks
+
+        merged = {j.key: j for j in run_blocks(blockwise, run_dir.path, executor)}
+        todo = [merged.get(t.key, t) for t in todo]
     display = Display(total, config.quiet, done=skipped)
     t0 = time.perf_counter()
     try:

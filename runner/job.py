@@ -208,7 +208,8 @@ def _score(score: Callable, spec, shape, pred_V, pred_F, result: TaskResult, rep
     with stage("metrics"):
         if shape.has_gt:
             scores = score(shape.vertices, shape.faces, pred_V, pred_F, preset=spec.metric_preset,
-                           seed=job_streams(shape.content_hash, spec.seed).metrics, n_points=spec.eval_points)
+                           seed=job_streams(shape.content_hash, spec.seed).metrics, n_points=spec.eval_points,
+                           metres_per_unit=shape.meta.get("metres_per_unit"))
         else:
             scores = evaluate_without_gt(pred_V, pred_F)
     scores.pop("seconds", None)
@@ -452,16 +453,24 @@ def _reconstruct_body(spec: JobSpec, shape, device, timer: StageTimer, result: T
         result.info.update(facts)
         _record_training_overlap(network_training_record(method, budget, spec.train_dirs), shape, result)
         result.cache, result.cache_rejected = list(stats.hits), list(stats.rejected)
-    report("sampling")
-    with stage("sample"):
-        points, sensors = input_point_cloud(shape, spec.pc_points, spec.pc_noise, spec.seed, spec.pc_corruption)
-    result.info["input_points"] = int(len(points))
-    if method.uses_sensors and sensors is not None:
-        network["sensors"] = sensors
-    result.info["used_sensors"] = "sensors" in network
-    report("reconstructing")
-    with stage("reconstruct"):
-        extraction = method.reconstruct(points, spec.grid, device, seed=spec.seed, **network)
+    if spec.pc_blocks:
+        from runner.block_store import merged_extraction
+
+        report("merging blocks")
+        with stage("reconstruct"):
+            extraction = merged_extraction(spec, method)
+        timer.add("blocks_s", extraction.info.pop("blocks_s"))
+    else:
+        report("sampling")
+        with stage("sample"):
+            points, sensors = input_point_cloud(shape, spec.pc_points, spec.pc_noise, spec.seed, spec.pc_corruption)
+        result.info["input_points"] = int(len(points))
+        if method.uses_sensors and sensors is not None:
+            network["sensors"] = sensors
+        result.info["used_sensors"] = "sensors" in network
+        report("reconstructing")
+        with stage("reconstruct"):
+            extraction = method.reconstruct(points, spec.grid, device, seed=spec.seed, **network)
     result.info.update({k: v for k, v in extraction.info.items() if isinstance(v, (int, float, str, bool))})
     _score(metrics.evaluate, spec, shape, np.asarray(extraction.vertices, dtype=np.float64),
            np.asarray(extraction.faces, dtype=np.int64), result, report)

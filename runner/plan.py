@@ -140,7 +140,7 @@ def resolve(config: RunConfig) -> Plan:
             import ray  # noqa: F401
         except ImportError:
             raise ConfigError("--executor ray needs the optional package ray: pip install '.[ray]'") from None
-    options: dict[str, Any] = {}
+    options: dict[str, Any] = dict(config.dataset_params)
     if config.data_dir is not None:
         options["data_dir"] = _existing("--data-dir", config.data_dir, "directory")
     if config.list_file is not None:

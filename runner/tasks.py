@@ -107,7 +107,10 @@ class JobSpec(TaskSpec):
     pc_points: int | None = None
     pc_noise: float | None = None
     pc_corruption: str = "uniform"
+    pc_blocks: int = 0
+    pc_scene_grid: int = 0
     train_dirs: tuple[str, ...] = ()
+    blocks_dir: str | None = None  # where a block-wise job's blocks are (runner.blocks); not identity
 
     kind = "job"
 
@@ -122,6 +125,8 @@ class JobSpec(TaskSpec):
             ident.update(task=self.task, pc_points=self.pc_points, pc_noise=self.pc_noise)
             if self.pc_corruption != "uniform":  # likewise: a job on uniform samples keeps its key
                 ident["pc_corruption"] = self.pc_corruption
+            if self.pc_blocks:  # likewise: a job on the whole grid keeps its key
+                ident.update(pc_blocks=self.pc_blocks, pc_scene_grid=self.pc_scene_grid)
             if self.budget is not None:  # a learned method: its training set is part of what it computes
                 ident["train_dirs"] = list(self.train_dirs)
         return ident
@@ -171,7 +176,8 @@ def build_tasks(plan) -> tuple[list[FloorSpec], list[JobSpec]]:
         for v in plan.variants:
             vc = v.config
             floor = FloorSpec(shape=s, seed=c.seeds[0], eval_points=vc.eval_points, **common)
-            reconstruct = ({"pc_points": vc.pc_points, "pc_noise": vc.pc_noise, "pc_corruption": vc.pc_corruption}
+            reconstruct = ({"pc_points": vc.pc_points, "pc_noise": vc.pc_noise, "pc_corruption": vc.pc_corruption,
+                            "pc_blocks": vc.pc_blocks, "pc_scene_grid": vc.pc_scene_grid}
                            if vc.task == "reconstruct" else {})
             floors.setdefault(floor.key, floor)
             for m in plan.methods:

@@ -49,8 +49,8 @@ def test_presets_are_data_with_the_spec_values():
     assert n.f1_keys == ("f1_003",) and n.report_scale["cd"] == 1e5 and n.report_scale["ecd"] == 100
     with pytest.raises(Exception):
         d.n_points = 5  # frozen
-    assert list(M.PRESETS) == ["default", "ndc"] and "ndc" in M.PRESETS
-    with pytest.raises(ValueError, match="^unknown metric preset 'nd'; known metric presets: default, ndc$"):
+    assert list(M.PRESETS) == ["default", "ndc", "scene"] and "ndc" in M.PRESETS
+    with pytest.raises(ValueError, match="^unknown metric preset 'nd'; known metric presets: default, ndc, scene$"):
         M.evaluate(*box(2.0), *box(2.0), preset="nd", n_points=10)
 
 
@@ -334,3 +334,17 @@ def test_a_prediction_without_a_gt_gets_its_validity_only():
     assert M.evaluate_without_gt(line, [[0, 1, 2]])["empty_prediction"] is True
     assert M.evaluate_without_gt(np.zeros((0, 3)), np.zeros((0, 3)))["n_faces"] == 0
     assert M.evaluate(V, F, V, F, n_points=2000)["scored"] is True
+
+
+def test_the_scene_preset_scores_in_metres():
+    """A square of side 0.5 units and its copy 0.015 units above, at 2 m per unit: a 1 m square and
+    its copy 3 cm above, so CD = 0.03 m up to the samples' spacing (2 mm at 200k points), F1 is 0 at
+    2 cm and 1 at 5 and 10 cm."""
+    V = 0.5 * np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=float)
+    F = np.array([[0, 1, 2], [0, 2, 3]])
+    r = M.evaluate(V, F, V + [0, 0, 0.015], F, preset="scene", n_points=200_000, metres_per_unit=2.0)
+    assert r["cd"] == pytest.approx(0.03, rel=2e-3)
+    assert (r["f1_02"], r["f1_05"], r["f1_1"]) == (0.0, 1.0, 1.0)
+    assert r["gt_diagonal"] == pytest.approx(np.sqrt(2))
+    with pytest.raises(ValueError, match="scores in metres: the shape states no metres per unit"):
+        M.evaluate(V, F, V, F, preset="scene", n_points=1000)

@@ -157,9 +157,9 @@ def test_windows_tile_the_scene_and_poisson_by_windows_stays_close_to_global(roo
 
     shape, points = room_cloud
     poisson = get_method("poisson")
-    N, window, halo = 32, 24, 4  # blocks of 16 points: 8 windows
+    N = 32
     whole = poisson.reconstruct(points, N)
-    tiled = reconstruct_by_windows(poisson, points, N, window, halo)
+    tiled = reconstruct_by_windows(poisson, points, N, 16, 24)  # blocks of 16 points in windows of 24: 8
     assert tiled.info["blocks"] == 8
     cd_whole = evaluate(shape.vertices, shape.faces, whole.vertices, whole.faces, n_points=20_000)["cd"]
     cd_tiled = evaluate(shape.vertices, shape.faces, tiled.vertices, tiled.faces, n_points=20_000)["cd"]

@@ -233,7 +233,7 @@ def test_bad_frames_and_contexts_give_one_line_errors(tmp_path):
         build_summary({"shape": []}, floor, CONTEXT)
     with pytest.raises(ValueError, match=r"^context lacks key\(s\) eval_points, gpu$"):
         build_summary(results, floor, {k: v for k, v in CONTEXT.items() if k not in ("eval_points", "gpu")})
-    with pytest.raises(ValueError, match=r"^unknown metric preset 'nope'; known: default, ndc$"):
+    with pytest.raises(ValueError, match=r"^unknown metric preset 'nope'; known: default, ndc, scene$"):
         build_summary(results, floor, dict(CONTEXT, metric_preset="nope"))
     # no floor, no timing, no empty flag, everything failed: still writes every table
     dead = results.assign(status="failed", error="boom")[["shape", "method", "seed", "status", "error", "cd"]]

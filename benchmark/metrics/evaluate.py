@@ -83,6 +83,7 @@ def evaluate(
     preset: str | MetricPreset = "default",
     seed: Seed = 0,
     n_points: int | None = None,
+    metres_per_unit: float | None = None,
 ) -> dict:
     """All the metrics of a prediction against a GT mesh. Never raises on the prediction.
 
@@ -104,6 +105,9 @@ def evaluate(
         its earlier spawns do not matter.
     n_points : int, optional
         Samples per mesh (default: the preset's).
+    metres_per_unit : float, optional
+        Metres per unit of the meshes' frame, for a preset in metres (``scene``); ignored by the
+        others.
 
     Returns
     -------
@@ -135,7 +139,8 @@ def evaluate(
     ------
     ValueError
         Only for an unusable GT (no triangles, out-of-range indices, non-finite vertices, faces on a
-        line or a point, a bounding box beyond float64), a bad ``n_points`` or ``seed``.
+        line or a point, a bounding box beyond float64), a bad ``n_points`` or ``seed``, a preset in
+        metres without a positive ``metres_per_unit``.
     """
     timer = StageTimer()
     t_start = time.perf_counter()
@@ -153,6 +158,12 @@ def evaluate(
         pred_vertices = np.zeros((0, 3))
 
     _check_gt(gt_vertices, gt_faces)
+    if preset.frame == "metres":
+        if not (metres_per_unit is not None and np.isfinite(metres_per_unit) and metres_per_unit > 0):
+            raise ValueError(f"metric preset '{preset.name}' scores in metres: the shape states no metres per "
+                             f"unit (a scene dataset such as 'street' does)")
+        with np.errstate(over="ignore", invalid="ignore"):
+            gt_vertices, pred_vertices = gt_vertices * metres_per_unit, pred_vertices * metres_per_unit
     lo, hi = _bbox(gt_vertices, gt_faces)
     if preset.frame == "diag1":
         diag = _diagonal(lo, hi)
@@ -263,10 +274,12 @@ def evaluate_without_gt(pred_vertices, pred_faces) -> dict:
     return result
 
 
-def floor(gt_vertices, gt_faces, preset: str | MetricPreset = "default", seed: Seed = 0, n_points: int | None = None) -> dict:
+def floor(gt_vertices, gt_faces, preset: str | MetricPreset = "default", seed: Seed = 0, n_points: int | None = None,
+          metres_per_unit: float | None = None) -> dict:
     """The protocol's noise floor: the GT scored against an independent resample of itself.
 
     Identical to ``evaluate(gt, gt, preset, seed)``: the prediction's samples come from a
     different stream of the seed than the GT's, so the two point sets are independent draws.
     """
-    return evaluate(gt_vertices, gt_faces, gt_vertices, gt_faces, preset=preset, seed=seed, n_points=n_points)
+    return evaluate(gt_vertices, gt_faces, gt_vertices, gt_faces, preset=preset, seed=seed, n_points=n_points,
+                    metres_per_unit=metres_per_unit)

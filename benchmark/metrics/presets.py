@@ -12,7 +12,7 @@ from dataclasses import asdict, dataclass
 
 from benchmark.registry import Registry
 
-__all__ = ["HeadlineMetric", "f1_column", "MetricPreset", "DEFAULT", "NDC", "PRESETS", "get_preset"]
+__all__ = ["HeadlineMetric", "f1_column", "MetricPreset", "DEFAULT", "NDC", "SCENE", "PRESETS", "get_preset"]
 
 
 @dataclass(frozen=True)
@@ -40,9 +40,10 @@ class MetricPreset:
     ----------
     name : preset name ('default', 'ndc').
     n_points : surface samples per mesh.
-    frame : 'canonical' (inputs are used as given: the GT's canonical frame) or
+    frame : 'canonical' (inputs are used as given: the GT's canonical frame),
         'diag1' (both meshes mapped by ``x -> (x - c) / D``, c and D the GT bounding-box centre and
-        diagonal: NDC's frame).
+        diagonal: NDC's frame) or 'metres' (both meshes scaled by the GT's metres per canonical
+        unit, which the caller passes: a scene's metric frame).
     chamfer : 'l1_half_mean' -> ``1/2 (mean d(g->P) + mean d(p->G))``; 'squared_sum' ->
         ``mean d(g->P)^2 + mean d(p->G)^2``.
     cd_scale : multiplier for tables (the returned value is raw).
@@ -73,8 +74,8 @@ class MetricPreset:
     empty_edge_fallback: int
 
     def __post_init__(self):
-        if self.frame not in ("canonical", "diag1"):
-            raise ValueError(f"preset {self.name}: frame must be 'canonical' or 'diag1', got {self.frame!r}")
+        if self.frame not in ("canonical", "diag1", "metres"):
+            raise ValueError(f"preset {self.name}: frame must be 'canonical', 'diag1' or 'metres', got {self.frame!r}")
         for what in (self.chamfer, self.ecd):
             if what not in ("l1_half_mean", "squared_sum"):
                 raise ValueError(f"preset {self.name}: chamfer form must be 'l1_half_mean' or 'squared_sum', got {what!r}")
@@ -109,7 +110,8 @@ class MetricPreset:
         ``n_points`` overrides the preset's sample count (a run's ``--eval-points``)."""
         unit = " D" if self.edge_units == "gt_diagonal" else ""
         frame = {"canonical": "GT canonical frame (bbox centred, largest side 1.99)",
-                 "diag1": "GT bbox centred, diagonal 1 (NDC)"}[self.frame]
+                 "diag1": "GT bbox centred, diagonal 1 (NDC)",
+                 "metres": "GT canonical frame scaled to metres (lengths in m)"}[self.frame]
         chamfer = {"l1_half_mean": "½(mean d(g→P) + mean d(p→G)), unsquared",
                    "squared_sum": "mean d(g→P)² + mean d(p→G)²"}
         items = [
@@ -171,11 +173,30 @@ NDC = MetricPreset(
     empty_edge_fallback=486,
 )
 
+#: Scenes in metric units (the ``street`` dataset): CD in cm, F-scores at 2, 5 and 10 cm, sharp-edge
+#: points within 10 cm, EF1 at 5 cm. Lengths in metres: the GT's ``metres_per_unit`` scales both meshes.
+SCENE = MetricPreset(
+    name="scene",
+    n_points=1_000_000,
+    frame="metres",
+    chamfer="l1_half_mean",
+    cd_scale=1e2,
+    f1_thresholds=(0.02, 0.05, 0.1),
+    edge_units="frame",
+    edge_radius=0.1,
+    edge_dot_threshold=0.2,
+    ef1_threshold=0.05,
+    ecd="l1_half_mean",
+    ecd_scale=1e2,
+    empty_edge_fallback=0,
+)
+
 #: The presets by name (``PRESETS["ndc"]``, ``"ndc" in PRESETS``, ``list(PRESETS)``); an unknown
 #: name gets the project's one message: "unknown metric preset 'x'; known metric presets: ...".
 PRESETS: Registry[MetricPreset] = Registry("metric preset")
 PRESETS.register(DEFAULT.name, DEFAULT)
 PRESETS.register(NDC.name, NDC)
+PRESETS.register(SCENE.name, SCENE)
 
 
 def get_preset(preset: str | MetricPreset) -> MetricPreset:

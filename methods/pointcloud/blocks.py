@@ -50,7 +50,8 @@ from methods.pointcloud.neighbourhoods import nearest_distance
 
 __all__ = ["Block", "blocks", "owned_box", "crop", "band_edges_in_block", "halo_is_enough", "HaloTooSmall",
            "BlockEdges", "block_edges", "merge_edges", "reconstruct_by_edges", "window_frame", "clip_to_box",
-           "reconstruct_by_windows", "density_scale", "mean_neighbour_distance"]
+           "window_of", "window_piece", "merge_pieces", "reconstruct_by_windows", "density_scale",
+           "mean_neighbour_distance"]
 
 
 @dataclass(frozen=True)
@@ -271,41 +272,59 @@ def _owned_half_open(block: Block) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
-def reconstruct_by_windows(method, points: np.ndarray, N: int, window: int, halo_points: int,
-                           device=None, seed: int = 0, min_points: int = 16,
+def window_of(block: Block, window: int) -> tuple[int, tuple[np.ndarray, np.ndarray]]:
+    """(halo points, canonical box) of the window of ``window`` grid points per axis centred on
+    ``block``: ``(window - block size) // 2`` points on its lower side."""
+    size = max(b - a for a, b in zip(block.lo, block.hi))
+    halo_points = (window - size) // 2
+    if halo_points < 1:
+        raise ValueError(f"a window of {window} points leaves no halo around a block of {size} points")
+    origin, _ = window_frame(block, halo_points, window)
+    return halo_points, (origin, origin + (window - 1) * spacing(block.N))
+
+
+def window_piece(method, cloud: np.ndarray, block: Block, window: int, device=None, seed: int = 0,
+                 sensors: np.ndarray | None = None, min_points: int = 16, **network) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices, faces) that ``block`` owns of ``method.reconstruct`` on its window (the points of
+    ``cloud`` inside the window's box, with their ``sensors`` for a method that uses them, moved to
+    the window's frame), in the frame of ``cloud``. Nothing below ``min_points`` input points."""
+    halo_points, box = window_of(block, window)
+    rows = crop(cloud, box, 0.0)
+    if len(rows) < min_points:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
+    origin, scale = window_frame(block, halo_points, window)
+    if sensors is not None:
+        network = {**network, "sensors": LOWER + (np.asarray(sensors)[rows] - origin) * scale}
+    out = method.reconstruct(LOWER + (np.asarray(cloud)[rows] - origin) * scale, window, device, seed=seed, **network)
+    V = (np.asarray(out.vertices, dtype=np.float64) - LOWER) / scale + origin
+    F = clip_to_box(V, np.asarray(out.faces, dtype=np.int64), *_owned_half_open(block))
+    used, F = np.unique(F, return_inverse=True)
+    return V[used], F.reshape(-1, 3)
+
+
+def merge_pieces(pieces: Iterable[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """One mesh of the blocks' pieces (vertices concatenated, faces re-indexed; nothing welded)."""
+    pieces = list(pieces)
+    offsets = np.cumsum([0] + [len(V) for V, _ in pieces])
+    V = np.concatenate([V for V, _ in pieces]) if pieces else np.zeros((0, 3))
+    F = np.concatenate([F + o for (_, F), o in zip(pieces, offsets)]) if pieces else np.zeros((0, 3), np.int64)
+    return V, F.reshape(-1, 3).astype(np.int64)
+
+
+def reconstruct_by_windows(method, points: np.ndarray, N: int, block: int, window: int, device=None, seed: int = 0,
+                           sensors: np.ndarray | None = None,
                            run: Callable[[Callable, list], list] | None = None, **network) -> Extraction:
     """``method.reconstruct`` window by window on the N grid (module docstring): blocks of
-    ``window - 2 halo_points`` points per axis, each reconstructed from the points of its window
-    on the method's ``window`` grid, keeping the triangles whose centroid it owns. A window with
-    fewer than ``min_points`` input points gives nothing. ``network``: passed to
-    ``method.reconstruct`` (a learned method's model)."""
-    core = window - 2 * halo_points
-    if core < 1:
-        raise ValueError(f"a window of {window} points with a halo of {halo_points} points owns nothing")
+    ``block`` points per axis, each reconstructed from the points of the window of ``window``
+    points centred on it, on the method's ``window`` grid, keeping the triangles whose centroid it
+    owns. ``network``: passed to ``method.reconstruct`` (a learned method's model)."""
     points = np.asarray(points, dtype=np.float64)
     run = run or (lambda fn, tasks: [fn(*t) for t in tasks])
-    h = spacing(N)
-
-    def one(b: Block, cloud: np.ndarray):
-        if len(cloud) < min_points:
-            return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
-        origin, scale = window_frame(b, halo_points, window)
-        out = method.reconstruct(LOWER + (cloud - origin) * scale, window, device, seed=seed, **network)
-        V = (np.asarray(out.vertices, dtype=np.float64) - LOWER) / scale + origin
-        F = clip_to_box(V, np.asarray(out.faces, dtype=np.int64), *_owned_half_open(b))
-        used, F = np.unique(F, return_inverse=True)
-        return V[used], F.reshape(-1, 3)
-
-    tasks = []
-    for b in blocks(N, core):
-        origin, _ = window_frame(b, halo_points, window)
-        box = (origin, origin + (window - 1) * h)
-        tasks.append((b, points[crop(points, box, 0.0)]))
-    parts = run(one, tasks)
-    offsets = np.cumsum([0] + [len(V) for V, _ in parts])
-    V = np.concatenate([V for V, _ in parts]) if parts else np.zeros((0, 3))
-    F = np.concatenate([F + o for (_, F), o in zip(parts, offsets)]) if parts else np.zeros((0, 3), np.int64)
-    return Extraction(V, F, info={"blocks": len(tasks), "block_points_max": max((len(c) for _, c in tasks), default=0)})
+    parts = blocks(N, block)
+    pieces = run(lambda b: window_piece(method, points, b, window, device, seed, sensors, **network),
+                 [(b,) for b in parts])
+    V, F = merge_pieces(pieces)
+    return Extraction(V, F, info={"blocks": len(parts)})
 
 
 def mean_neighbour_distance(points: np.ndarray) -> float:
