@@ -311,6 +311,11 @@ class LearnedPointCloudMethod(PointCloudMethod):
     #: Modules (besides the method's own) whose code the trained network depends on.
     training_modules: ClassVar[tuple[str, ...]] = ()
 
+    def training_cloud_points(self, budget) -> int:
+        """Points of each training cloud the network saw under ``budget`` (the density a scene's
+        cloud is matched to, :func:`methods.pointcloud.blocks.density_scale`)."""
+        return int(budget.points_per_item)
+
     def train_network(self, shapes: list, budget, seed: int, device=None, progress=None):
         """Train this method's network on ``shapes`` (:class:`datasets.Shape`) under ``budget`` (a
         record of its budget family, with the :class:`methods.pointcloud.training_set.TrainingSet`

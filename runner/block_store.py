@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import io
 import json
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -22,16 +22,29 @@ from methods.pointcloud.blocks import Block, blocks
 from runner.tasks import JobSpec, digest
 
 CLOUD_FILE = "cloud.npz"
-def scene_grid(job: JobSpec) -> int:
-    """Points per axis of the grid the job's scene is reconstructed on (``pc_scene_grid``, else
-    ``grid``)."""
-    return job.pc_scene_grid or job.grid
+SCENE_FILE = "scene.json"
 
 
-def input_scale(job: JobSpec) -> float:
-    """How much larger than the training grid's the scene grid's cells are in the network's eyes:
-    ``(scene grid - 1) / (grid - 1)``."""
-    return (scene_grid(job) - 1) / (job.grid - 1)
+@dataclass(frozen=True)
+class Scene:
+    """The grid a block-wise job reconstructs its scene on: ``grid`` points per axis over the
+    canonical cube, seen by the networks scaled by ``input_scale`` = (grid - 1) / (training grid - 1),
+    and how it was chosen (``rule``; the cloud's and the training clouds' mean neighbour distances
+    for POCO's rule)."""
+
+    grid: int
+    input_scale: float
+    rule: str
+    cloud_neighbour_distance: float | None = None
+    training_neighbour_distance: float | None = None
+
+
+def write_scene(folder: Path, scene: Scene) -> None:
+    atomic_write(Path(folder) / SCENE_FILE, json.dumps(asdict(scene), sort_keys=True).encode())
+
+
+def read_scene(folder: Path) -> Scene:
+    return Scene(**json.loads((Path(folder) / SCENE_FILE).read_text()))
 
 
 def by_edges(method) -> bool:
@@ -51,6 +64,7 @@ class BlockTask:
     block: Block
     halo: float
     folder: str
+    input_scale: float = 1.0
 
     kind = "block"
 
@@ -97,7 +111,7 @@ def write_block(result: BlockResult) -> None:
 def read_blocks(job: JobSpec) -> tuple[list[tuple[Block, dict[str, Any]]], list[str]]:
     """((block, its stored arrays and meta) for every stored block, names of the missing blocks)."""
     found, missing = [], []
-    for b in blocks(scene_grid(job), job.pc_blocks):
+    for b in blocks(read_scene(job.blocks_dir).grid, job.pc_blocks):
         path = Path(job.blocks_dir) / f"{b.name}.npz"
         if not path.is_file():
             missing.append(b.name)
@@ -124,7 +138,8 @@ def merged_extraction(job: JobSpec, method):
     if missing:
         raise BlocksMissing(f"{len(missing)} of {len(missing) + len(found)} blocks did not finish "
                             f"(first: {missing[0]}; see the run's log)")
-    N = scene_grid(job)
+    scene = read_scene(job.blocks_dir)
+    N = scene.grid
     if by_edges(method):
         parts = [BlockEdges(b, a["ids"], a["s"], a.get("normals"), int(a["queried"]), int(a["points"]))
                  for b, a in found]
@@ -137,5 +152,5 @@ def merged_extraction(job: JobSpec, method):
     out.info.update(blocks=len(found), block_points_max=int(max((int(a["points"]) for _, a in found), default=0)),
                     blocks_s=float(sum(seconds)), block_s_max=float(max(seconds, default=0.0)),
                     block_peak_rss_mib=float(max(peaks)) if peaks else float("nan"),
-                    scene_grid=N, input_scale=input_scale(job))
+                    scene_grid=N, input_scale=scene.input_scale, scene_rule=scene.rule)
     return out

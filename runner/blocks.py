@@ -3,9 +3,11 @@
 A reconstruct job with ``pc_blocks > 0`` (``--pc-blocks B``) is run in three steps:
 
 1. **Cloud** (:func:`prepare_cloud`, in the driver): the job's input cloud (the shared sampler's, or
-   the scan's, with its sensors) is written once to ``OUT/blocks/<job key>/cloud.npz``.
+   the scan's, with its sensors) is written once to ``OUT/blocks/<job key>/cloud.npz``, its scene
+   grid to ``scene.json``.
 2. **Blocks** (:func:`run_blocks`): one :class:`BlockTask` per block of the scene grid
-   (``pc_scene_grid`` points per axis, else ``grid``; :mod:`methods.pointcloud.blocks`) runs on the
+   (:func:`scene_of`: ``pc_scene_grid`` points per axis when given, else POCO's rule for a
+   learned method and ``grid`` for the others; :mod:`methods.pointcloud.blocks`) runs on the
    run's executor (process pool or Ray: one block per task). A task reads only its block's crop of
    the cloud (in chunks), so a worker holds the block's points and the block's grid, not the
    scene's. A method with an edge field (``edge_field``) gives its intersected edges; any other
@@ -35,20 +37,42 @@ import numpy as np
 
 from benchmark.storage import atomic_write
 from methods.pointcloud.blocks import HaloTooSmall, blocks, owned_box, window_of
-from runner.block_store import (CLOUD_FILE, BlockResult, BlockTask, blocks_folder, by_edges, input_scale,
-                                scene_grid, write_block)
+from runner.block_store import (CLOUD_FILE, BlockResult, BlockTask, Scene, blocks_folder, by_edges, read_scene,
+                                write_block, write_scene)
 from runner.tasks import JobSpec, load_dataset
 
 #: Rows of the cloud a block task reads at a time while cropping.
 CROP_CHUNK = 1 << 20
 
 
+def scene_of(job: JobSpec, points: np.ndarray) -> Scene:
+    """The job's scene grid: ``pc_scene_grid`` when given; else POCO's rule for a learned method (the
+    grid on which ``points`` have its training clouds' density,
+    :func:`methods.pointcloud.blocks.density_scale`), and ``grid`` for any other method."""
+    from methods.base import get_method
+    from methods.pointcloud.blocks import density_scale, mean_neighbour_distance
+
+    if job.pc_scene_grid:
+        n = job.pc_scene_grid
+        return Scene(n, (n - 1) / (job.grid - 1), "given (--pc-scene-grid)")
+    method = get_method(job.method, **job.params)
+    if not (method.learned and job.budget is not None):
+        return Scene(job.grid, 1.0, "the method's grid (--grid)")
+    from methods.pointcloud.training_set import training_neighbour_distance
+
+    reference = training_neighbour_distance(method.training_cloud_points(method.budget(job.budget, job.budget_params)))
+    n, scale = density_scale(points, reference, job.grid)
+    return Scene(n, scale, "training density (POCO's rule)", mean_neighbour_distance(points), reference)
+
+
 def prepare_cloud(job: JobSpec, folder: Path) -> None:
-    """Write the job's input cloud (and sensors) to ``folder/cloud.npz`` unless it is there."""
+    """Write the job's input cloud (and sensors) to ``folder/cloud.npz`` and its scene grid
+    (:func:`scene_of`) to ``folder/scene.json``, unless they are there."""
+    from runner.block_store import SCENE_FILE
     from runner.job import input_point_cloud
 
     path = folder / CLOUD_FILE
-    if path.is_file():
+    if path.is_file() and (folder / SCENE_FILE).is_file():
         return
     shape = load_dataset(job.dataset, job.dataset_options).load(job.shape)
     points, sensors = input_point_cloud(shape, job.pc_points, job.pc_noise, job.seed, job.pc_corruption)
@@ -57,6 +81,7 @@ def prepare_cloud(job: JobSpec, folder: Path) -> None:
     np.savez(buffer, **arrays)
     folder.mkdir(parents=True, exist_ok=True)
     atomic_write(path, buffer.getvalue())
+    write_scene(folder, scene_of(job, points))
 
 
 def crop_cloud(path: Path, box: tuple[np.ndarray, np.ndarray], halo: float) -> tuple[np.ndarray, np.ndarray | None]:
@@ -128,7 +153,7 @@ def run_block_task(task: BlockTask, progress=None) -> BlockResult:
                 from methods.pointcloud.blocks import block_edges
 
                 points, _ = crop_cloud(cloud, owned_box(task.block), task.halo)
-                edges = block_edges(method, points, task.block, task.halo, network["model"], device, input_scale(job))
+                edges = block_edges(method, points, task.block, task.halo, network["model"], device, task.input_scale)
                 result.arrays = {"ids": edges.ids, "s": edges.s, "queried": np.int64(edges.queried),
                                  "points": np.int64(edges.points)}
                 if edges.normals is not None:
@@ -155,10 +180,11 @@ def block_tasks(job: JobSpec, folder: Path) -> list[BlockTask]:
     """The job's block tasks whose result is not stored yet."""
     from methods.base import get_method
 
-    N = scene_grid(job)
+    scene = read_scene(folder)
+    N = scene.grid
     method = get_method(job.method, **job.params)
     halo = (method.params["band"] + 1) * 2.0 / (N - 1) if by_edges(method) else 0.0
-    tasks = [BlockTask(job, b, halo, str(folder)) for b in blocks(N, job.pc_blocks)]
+    tasks = [BlockTask(job, b, halo, str(folder), scene.input_scale) for b in blocks(N, job.pc_blocks)]
     return [t for t in tasks if not t.result_path.is_file()]
 
 

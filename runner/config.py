@@ -137,9 +137,9 @@ class RunConfig:
         "centred on each block (docs/PROTOCOL.md, 'Block-wise reconstruction')", sweep="pc_blocks", ge=0)
     pc_scene_grid: int = _setting(
         "identity", 0, "reconstruct task with --pc-blocks: points per axis of the scene's grid over the canonical "
-        "cube (0: --grid). A finer grid reconstructs the scene at --grid's spacing on a (N-1)/(grid-1) times "
-        "larger scene: the networks see the cloud scaled by that factor (POCO's rule: pick N so the scaled "
-        "cloud's mean neighbour distance is the training clouds')", sweep="pc_scene_grid", ge=0)
+        "cube. 0 (default): POCO's rule for a learned method (the grid on which the cloud has its training "
+        "clouds' density: the network sees the cloud scaled by (N-1)/(grid-1)), --grid for any other method",
+        sweep="pc_scene_grid", ge=0)
     train_dirs: tuple[str, ...] | None = _setting(
         "identity", None, "reconstruct task: a folder of extra training meshes for the learned methods (repeatable; "
         "default: ../shared/data/thingi10k where it exists); the built-in training parts are always included",
@@ -266,9 +266,8 @@ class RunConfig:
             raise ConfigError("--pc-blocks and --pc-scene-grid apply to --task reconstruct")
         if self.pc_scene_grid and not self.pc_blocks:
             raise ConfigError("--pc-scene-grid is the grid of a block-wise reconstruction: give --pc-blocks too")
-        if self.pc_scene_grid and self.pc_scene_grid < self.grid:
-            raise ConfigError(f"--pc-scene-grid {self.pc_scene_grid} is coarser than --grid {self.grid}: a scene "
-                              f"grid is at least the training grid")
+        if self.pc_scene_grid == 1:
+            raise ConfigError("--pc-scene-grid needs at least 2 points per axis (or 0: chosen by the method)")
         if self.pc_noise != 0 and (self.pc_corruption != "uniform" or "pc_corruption" in self.sweep):
             raise ConfigError("--pc-noise adds Gaussian noise to uniform samples; for a scan use --pc-corruption "
                               "noise-1, noise-2 or noise-3 (noise along the sensor's rays)")

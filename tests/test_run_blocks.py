@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import signal
 import sqlite3
@@ -13,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from runner.block_store import CLOUD_FILE, BlockResult, BlockTask, write_block
+from runner.block_store import CLOUD_FILE, BlockResult, BlockTask, Scene, write_block, write_scene
 from runner.blocks import crop_cloud
 from runner.config import ConfigError, RunConfig
 from runner.tasks import JobSpec
@@ -36,8 +37,8 @@ def test_block_settings_are_checked():
         RunConfig(pc_blocks=8)
     with pytest.raises(ConfigError, match="give --pc-blocks too"):
         RunConfig(task="reconstruct", pc_scene_grid=256)
-    with pytest.raises(ConfigError, match="coarser than --grid"):
-        RunConfig(task="reconstruct", pc_blocks=8, pc_scene_grid=64, grid=128)
+    with pytest.raises(ConfigError, match="at least 2 points"):
+        RunConfig(task="reconstruct", pc_blocks=8, pc_scene_grid=1)
 
 
 def _job(**kw) -> JobSpec:
@@ -68,6 +69,7 @@ def test_a_stored_block_round_trips(tmp_path):
     from runner.block_store import read_blocks
 
     job = _job(grid=8, pc_blocks=8, blocks_dir=str(tmp_path))
+    write_scene(tmp_path, Scene(8, 1.0, "given"))
     task = BlockTask(job, Block(8, (0, 0, 0), (8, 8, 8)), 0.0, str(tmp_path))
     faces = np.array([[0, 1, 2]])
     write_block(BlockResult(task, "ok", {"vertices": np.eye(3), "faces": faces, "points": np.int64(3)}, 1.5, 200.0))
@@ -115,3 +117,22 @@ def test_a_killed_block_wise_run_resumes_without_recomputing_finished_blocks(tmp
     with np.load(cloud) as data:
         points = data["points"]
     assert n_faces == len(reconstruct_by_windows(get_method("poisson"), points, 32, 12, 24).faces) > 0
+
+
+def test_the_scene_grid_of_a_learned_method_follows_its_training_density():
+    """POCO's rule: a cloud twice as dense as the training clouds gets a grid of 2 (grid - 1) + 1
+    points; a method without a network keeps --grid; a given grid is kept."""
+    from methods.base import get_method
+    from methods.pointcloud.training_set import training_neighbour_distance
+    from runner.blocks import scene_of
+
+    job = dataclasses.replace(_job(grid=33, pc_blocks=8), method="sals-knn", budget="tiny")
+    method = get_method("sals-knn")
+    reference = training_neighbour_distance(method.training_cloud_points(method.budget("tiny")))
+    spacing = reference / 2
+    lattice = spacing * np.stack(np.meshgrid(np.arange(60.0), np.arange(60.0), [0.0], indexing="ij"), -1).reshape(-1, 3)
+    scene = scene_of(job, lattice)
+    assert (scene.grid, scene.input_scale) == (65, 2.0)
+    assert scene.cloud_neighbour_distance == pytest.approx(spacing) and scene.training_neighbour_distance == reference
+    assert scene_of(_job(grid=33, pc_blocks=8), lattice).grid == 33  # poisson: its own grid
+    assert scene_of(_job(grid=33, pc_blocks=8, pc_scene_grid=40), lattice).grid == 40

@@ -262,3 +262,23 @@ def train_steps(method, model: torch.nn.Module, optimizer: torch.optim.Optimizer
     return TrainResult(model=model, losses=result.losses, seconds=result.seconds, steps=steps,
                        samples_per_s=steps * batch / max(result.seconds, 1e-9), final_loss=result.final_loss,
                        pool_seconds=pool_seconds)
+
+
+#: Training shapes whose clouds measure the training density (:func:`training_neighbour_distance`).
+DENSITY_SHAPES = 8
+
+
+@functools.lru_cache(maxsize=None)
+def training_neighbour_distance(points: int, seed: int = DEFAULT_TRAINING_SEED) -> float:
+    """Mean distance of a training cloud's points to their nearest other point (canonical units):
+    ``points`` area-uniform points on each of the first :data:`DENSITY_SHAPES` training parts,
+    averaged over the parts. The density a learned network was trained at."""
+    from pykdtree.kdtree import KDTree
+
+    means = []
+    shapes = training_shapes(DENSITY_SHAPES, seed)
+    for shape, stream in zip(shapes, np.random.SeedSequence([int(seed), int(points)]).spawn(len(shapes))):
+        cloud, _ = sample_surface(shape.vertices, shape.faces, int(points), np.random.default_rng(stream))
+        dist, _ = KDTree(cloud).query(cloud, k=2)
+        means.append(float(np.mean(np.asarray(dist).reshape(-1, 2)[:, 1])))
+    return float(np.mean(means))

@@ -309,6 +309,9 @@ class POCOMethod(OwnNetworkMethod):
         """Cross-entropy of the (B, 2) logits [outside, inside] against the labels (B,) (0/1)."""
         return F.cross_entropy(prediction, targets["occupancy"].long())
 
+    def training_cloud_points(self, budget) -> int:
+        return int(budget.input_points)
+
     def train_network(self, shapes, budget, seed, device=None, progress=None) -> TrainResult:
         return train_poco(self, shapes, budget, seed=seed, device=device, progress=progress)
 
