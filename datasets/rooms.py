@@ -403,10 +403,32 @@ def room_name(index: int) -> str:
     return f"room_{index:03d}"
 
 
-def room_shape(index: int, seed: int = 0, object_source: ObjectSource | None = None, source: str = "") -> Shape:
-    """Room ``index`` as a canonical :class:`Shape` (kind 'nonmanifold'); ``meta['room']`` is the
-    record of :func:`build_room` (room units; ``Shape.transform`` maps room units to canonical)."""
-    vertices, faces, record = build_room(index, seed, object_source)
+def tiled_room(index: int, seed: int = 0, object_source: ObjectSource | None = None,
+               tiles: int = 1) -> tuple[np.ndarray, np.ndarray, dict]:
+    """A scene of ``tiles`` x ``tiles`` rooms side by side (room units): rooms ``index tiles^2 + t``
+    (:func:`build_room`), room t's floor origin at ``(t // tiles, t % tiles)`` (each floor fits in
+    the unit square, so floors touch at most). One tile: room ``index`` itself."""
+    if tiles == 1:
+        return build_room(index, seed, object_source)
+    parts, records = [], []
+    for t in range(tiles * tiles):
+        vertices, faces, record = build_room(index * tiles * tiles + t, seed, object_source)
+        origin = np.array([t // tiles, t % tiles, 0.0]) * FLOOR_SIDE
+        parts.append((vertices + origin, faces))
+        records.append({**record, "origin": origin.tolist()})
+    offsets = np.cumsum([0] + [len(v) for v, _ in parts[:-1]])
+    vertices = np.vstack([v for v, _ in parts])
+    faces = np.vstack([f + o for (_, f), o in zip(parts, offsets)])
+    return vertices, faces, {"seed": int(seed), "index": int(index), "units": "room", "tiles": int(tiles),
+                             "rooms": records}
+
+
+def room_shape(index: int, seed: int = 0, object_source: ObjectSource | None = None, source: str = "",
+               tiles: int = 1) -> Shape:
+    """Room ``index`` (``tiles`` x ``tiles`` rooms: :func:`tiled_room`) as a canonical :class:`Shape`
+    (kind 'nonmanifold'); ``meta['room']`` is the record of :func:`build_room` (room units;
+    ``Shape.transform`` maps room units to canonical)."""
+    vertices, faces, record = tiled_room(index, seed, object_source, tiles)
     name = room_name(index)
     shape = normalize_shape(name, vertices, faces, source=source or f"rooms:{name} seed={seed}", kind="nonmanifold")
     shape.meta.update(seed=int(seed), index=int(index), room=record)
@@ -419,16 +441,18 @@ _ROOM_NAME = re.compile(r"^room_(\d{3,})$")
 @register_dataset("rooms")
 class RoomsDataset(Dataset):
     """Synthetic-Rooms-style scenes (module docstring). Options: ``count`` (default 10), ``seed``
-    (default 0), ``objects_dir`` (default None: built-in CAD parts; else a folder whose mesh files
+    (default 0), ``tiles`` (default 1: a scene is ``tiles`` x ``tiles`` rooms side by side,
+    :func:`tiled_room`), ``objects_dir`` (default None: built-in CAD parts; else a folder whose mesh files
     the objects are drawn from; ``data_dir``, the run's ``--data-dir``, is the same option). Shapes ``room_000``, ``room_001``, ...; room i does not depend on
     ``count``."""
 
     name = "rooms"
 
-    def __init__(self, count: int = DEFAULT_COUNT, seed: int = 0, objects_dir=None, data_dir=None):
+    def __init__(self, count: int = DEFAULT_COUNT, seed: int = 0, objects_dir=None, data_dir=None, tiles: int = 1):
         if objects_dir is None or str(objects_dir) == "":
             objects_dir = data_dir  # the run's --data-dir names the object folder
         self.count = as_int(count, "count", minimum=1)
+        self.tiles = as_int(tiles, "tiles", minimum=1)
         self.seed = as_int(seed, "seed", minimum=0)
         self.objects_dir: Path | None = None
         self.source: ObjectSource = BuiltinParts()
@@ -454,16 +478,19 @@ class RoomsDataset(Dataset):
     def load(self, name: str) -> Shape:
         index = self._index(name)
         where = f" objects_dir={self.objects_dir}" if self.objects_dir is not None else ""
-        return room_shape(index, self.seed, self.source, source=f"rooms:{name} seed={self.seed}{where}")
+        tiles = f" tiles={self.tiles}" if self.tiles > 1 else ""
+        return room_shape(index, self.seed, self.source, source=f"rooms:{name} seed={self.seed}{tiles}{where}",
+                          tiles=self.tiles)
 
     def stored_files(self, name: str) -> tuple[tuple[Path, str], ...]:
         index = self._index(name)
         if self.objects_dir is None:
             return ()
-        _, _, draws = room_layout(index, self.seed, len(self.source.names))
-        chosen = sorted({d.choice for d in draws})
+        n = self.tiles * self.tiles
+        chosen = sorted({d.choice for t in range(n)
+                         for d in room_layout(index * n + t, self.seed, len(self.source.names))[2]})
         return tuple((self.source.files[c], "mesh") for c in chosen)
 
     def options(self) -> dict[str, Any]:
-        return {"count": self.count, "seed": self.seed,
+        return {"count": self.count, "seed": self.seed, **({"tiles": self.tiles} if self.tiles > 1 else {}),
                 "objects_dir": None if self.objects_dir is None else str(self.objects_dir)}

@@ -177,15 +177,29 @@ def run_block_task(task: BlockTask, progress=None) -> BlockResult:
 
 
 def block_tasks(job: JobSpec, folder: Path) -> list[BlockTask]:
-    """The job's block tasks whose result is not stored yet."""
+    """The job's block tasks whose result is not stored yet. A block no input point comes near (its
+    owned box grown by the first halo, or its window) is stored empty here, without a task."""
     from methods.base import get_method
+    from methods.pointcloud.blocks import occupied_blocks
 
     scene = read_scene(folder)
     N = scene.grid
     method = get_method(job.method, **job.params)
     halo = (method.params["band"] + 1) * 2.0 / (N - 1) if by_edges(method) else 0.0
     tasks = [BlockTask(job, b, halo, str(folder), scene.input_scale) for b in blocks(N, job.pc_blocks)]
-    return [t for t in tasks if not t.result_path.is_file()]
+    tasks = [t for t in tasks if not t.result_path.is_file()]
+    if not tasks:
+        return []
+    with np.load(folder / CLOUD_FILE, mmap_mode="r") as data:
+        points = np.asarray(data["points"])
+    reach = halo if by_edges(method) else (job.grid - 1) * 2.0 / (N - 1)  # a window spans grid - 1 steps
+    near = set(occupied_blocks(points, N, job.pc_blocks, reach))
+    for t in tasks:
+        if t.block not in near:
+            empty = ({"ids": np.zeros(0, np.int64), "s": np.zeros(0, np.float32), "queried": np.int64(0)}
+                     if by_edges(method) else {"vertices": np.zeros((0, 3)), "faces": np.zeros((0, 3), np.int64)})
+            write_block(BlockResult(t, "ok", {**empty, "points": np.int64(0)}, 0.0, None))
+    return [t for t in tasks if t.block in near]
 
 
 def run_blocks(jobs: list[JobSpec], run_dir: Path, executor) -> list[JobSpec]:

@@ -216,3 +216,21 @@ def test_bad_options_are_one_line_errors(tmp_path):
         get_dataset("rooms", objects_dir=tmp_path / "absent")
     with pytest.raises(DatasetError, match="has no shape 'room_010'"):
         get_dataset("rooms").load("room_010")
+
+
+def test_tiles_put_rooms_side_by_side():
+    """tiles=2: rooms 4i .. 4i+3 moved to the unit squares of a 2 x 2 grid; one tile is room i."""
+    from datasets.rooms import tiled_room
+
+    V, F, record = tiled_room(1, 0, ToyParts(), tiles=2)
+    rooms = [build_room(4 + t, 0, ToyParts()) for t in range(4)]
+    assert len(F) == sum(len(f) for _, f, _ in rooms) and record["tiles"] == 2
+    start = 0
+    for t, (v, _, _) in enumerate(rooms):
+        np.testing.assert_array_equal(V[start:start + len(v)], v + [t // 2, t % 2, 0])
+        start += len(v)
+    assert V[:, :2].min() >= 0 and V[:, :2].max() <= 2
+    one = tiled_room(3, 0, ToyParts(), tiles=1)
+    np.testing.assert_array_equal(one[0], build_room(3, 0, ToyParts())[0])
+    ds = get_dataset("rooms", count=2, tiles=2)
+    assert ds.options()["tiles"] == 2 and ds.load("room_000").meta["room"]["tiles"] == 2

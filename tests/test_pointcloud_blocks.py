@@ -19,6 +19,7 @@ from methods.pointcloud.blocks import (
     density_scale,
     halo_is_enough,
     mean_neighbour_distance,
+    occupied_blocks,
     owned_box,
     reconstruct_by_edges,
     reconstruct_by_windows,
@@ -171,3 +172,15 @@ def test_density_scale_follows_the_mean_neighbour_distance():
     assert mean_neighbour_distance(0.01 * lattice) == pytest.approx(0.01)
     n, scale = density_scale(0.01 * lattice, reference_distance=0.02, N=65)  # twice as dense: twice the grid
     assert (n, scale) == (129, 2.0)
+
+
+def test_occupied_blocks_are_those_a_point_comes_near():
+    N, size = 9, 4  # blocks along an axis: points 0-3, 4-7, 8 (h = 0.25: boxes [-1, 0], [0, 1], [1, 1])
+    point = np.array([[-0.1, -0.9, -0.9]])  # x 0.1 below the first block's upper face
+    assert [b.lo for b in occupied_blocks(point, N, size, 0.05)] == [(0, 0, 0)]
+    assert [b.lo for b in occupied_blocks(point, N, size, 0.15)] == [(0, 0, 0), (4, 0, 0)]
+    cloud = np.random.default_rng(0).uniform(-1, 1, (50, 3))
+    for reach in (0.0, 0.3):
+        found = {b.lo for b in occupied_blocks(cloud, N, size, reach)}
+        expected = {b.lo for b in blocks(N, size) if len(crop(cloud, owned_box(b), reach))}
+        assert found == expected

@@ -48,7 +48,7 @@ from methods.base import Extraction
 from methods.extractors.edc import edge_dual_contouring
 from methods.pointcloud.neighbourhoods import nearest_distance
 
-__all__ = ["Block", "blocks", "owned_box", "crop", "band_edges_in_block", "halo_is_enough", "HaloTooSmall",
+__all__ = ["Block", "blocks", "occupied_blocks", "owned_box", "crop", "band_edges_in_block", "halo_is_enough", "HaloTooSmall",
            "BlockEdges", "block_edges", "merge_edges", "reconstruct_by_edges", "window_frame", "clip_to_box",
            "window_of", "window_piece", "merge_pieces", "reconstruct_by_windows", "density_scale",
            "mean_neighbour_distance"]
@@ -126,6 +126,24 @@ def band_edges_in_block(cloud: np.ndarray, block: Block, radius: float) -> np.nd
     ids = np.sort(np.concatenate(ids))
     mid = edge_inputs(N, ids).reshape(-1, 2, 3).mean(axis=1)
     return ids[nearest_distance(cloud, mid) <= radius]
+
+
+def occupied_blocks(points: np.ndarray, N: int, block: int, reach: float) -> list[Block]:
+    """The blocks of :func:`blocks` (N grid, ``block`` points per axis) whose owned box grown by
+    ``reach`` holds at least one of ``points``, in the order of :func:`blocks`. The others see no
+    input point, and a local method gives them nothing."""
+    size = block * spacing(N)
+    count = -(-N // block)
+    x = (np.asarray(points, dtype=np.float64) - LOWER) / size
+    first = np.clip(np.ceil(x - reach / size - 1), 0, count - 1).astype(np.int64)
+    last = np.clip(np.floor(x + reach / size), 0, count - 1).astype(np.int64)
+    keys = set()
+    span = int((last - first).max(initial=0)) + 1
+    for offset in np.ndindex(span, span, span):
+        k = first + np.asarray(offset)
+        keep = np.all(k <= last, axis=1)
+        keys.update(map(tuple, np.unique(k[keep], axis=0).tolist()))
+    return [b for b in blocks(N, block) if tuple(v // block for v in b.lo) in keys]
 
 
 class HaloTooSmall(Exception):
