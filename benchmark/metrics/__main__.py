@@ -1,4 +1,4 @@
-"""Command line: ``python -m benchmark.metrics GT PRED [--points N] [--preset default|ndc]
+"""Command line: ``python -m benchmark.metrics GT PRED [--points N] [--preset default|ndc|scene]
 [--seed S] [--json] [--no-normalize]`` scores one predicted mesh file against a GT mesh file.
 
 The prediction is data: whatever its file holds (no faces, NaN vertices, out-of-range indices,
@@ -62,7 +62,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("gt", help="ground-truth mesh file")
     parser.add_argument("pred", help="predicted mesh file")
     parser.add_argument("--points", type=int, default=None, help="samples per mesh (default: the preset's)")
-    parser.add_argument("--preset", choices=sorted(PRESETS), default="default")
+    parser.add_argument("--preset", choices=sorted(PRESETS), default="default",
+                        help="the protocol (scene: lengths in metres, the files' unit taken as metres)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
     parser.add_argument(
@@ -74,6 +75,7 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"--points must be >= 1, got {args.points}")
         gt_v, gt_f = read_mesh_arrays(args.gt)
         pred_v, pred_f = read_mesh_file(args.pred)  # the prediction's content is scored, not refused
+        metres_per_unit = 1.0  # the files' unit is taken as metres (the scene preset)
         if args.no_normalize:
             frame_note = "meshes used as stored (--no-normalize)"
         else:
@@ -85,7 +87,9 @@ def main(argv: list[str] | None = None) -> int:
             with np.errstate(over="ignore", invalid="ignore"):  # beyond float64 there: inf, dropped faces
                 pred_v = transform.apply(pred_v)
             frame_note = "both meshes mapped by the GT's canonical transform"
-        result = evaluate(gt_v, gt_f, pred_v, pred_f, preset=args.preset, seed=args.seed, n_points=args.points)
+            metres_per_unit = 1.0 / transform.scale
+        result = evaluate(gt_v, gt_f, pred_v, pred_f, preset=args.preset, seed=args.seed, n_points=args.points,
+                          metres_per_unit=metres_per_unit)
     except (ValueError, MemoryError) as exc:  # MeshError is a ValueError
         print(f"error: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}", file=sys.stderr)
         return 2
