@@ -198,6 +198,20 @@ class BuiltinParts:
         return f"builtin:{self.names[choice]} rng=[{seed}, {index}, {OBJECT_STREAM + slot}]"
 
 
+def objects_folder(objects_dir, dataset: str) -> Path | None:
+    """The folder a scene dataset draws its objects from (None: the built-in parts); a missing
+    folder or one without mesh files is a one-line error naming the option ``objects_dir``."""
+    if objects_dir is None or str(objects_dir) == "":
+        return None
+    try:
+        folder = existing_dir(objects_dir, dataset)
+    except DatasetNotFoundError as exc:
+        raise DatasetNotFoundError(str(exc).replace("data_dir", "objects_dir", 1)) from None
+    if not scan_meshes(folder):
+        raise DatasetError(f"dataset '{dataset}': no mesh files ({' '.join(MESH_EXTENSIONS)}) in objects_dir {folder}")
+    return folder
+
+
 class MeshFiles:
     """The mesh files of a folder (:func:`datasets.abc.scan_meshes`: recursive, sorted by relative
     path), read with :func:`datasets.io.load_shape` (a bad file: MeshError naming it), unused
@@ -454,17 +468,8 @@ class RoomsDataset(Dataset):
         self.count = as_int(count, "count", minimum=1)
         self.tiles = as_int(tiles, "tiles", minimum=1)
         self.seed = as_int(seed, "seed", minimum=0)
-        self.objects_dir: Path | None = None
-        self.source: ObjectSource = BuiltinParts()
-        if objects_dir is not None and str(objects_dir) != "":
-            try:
-                self.objects_dir = existing_dir(objects_dir, self.name)
-            except DatasetNotFoundError as exc:
-                raise DatasetNotFoundError(str(exc).replace("data_dir", "objects_dir", 1)) from None
-            self.source = MeshFiles(self.objects_dir)
-            if not self.source.files:
-                raise DatasetError(f"dataset 'rooms': no mesh files ({' '.join(MESH_EXTENSIONS)}) in "
-                                   f"objects_dir {self.objects_dir}")
+        self.objects_dir = objects_folder(objects_dir, self.name)
+        self.source: ObjectSource = BuiltinParts() if self.objects_dir is None else MeshFiles(self.objects_dir)
 
     def names(self) -> list[str]:
         return [room_name(i) for i in range(self.count)]

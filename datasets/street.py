@@ -47,9 +47,9 @@ import trimesh
 
 from benchmark.scanner import Scan, cast_rays
 from datasets.builtin import TEMPLATE_NAMES, build_part, manifold_arrays
-from datasets.io import MESH_EXTENSIONS, Shape, classify_topology, normalize_shape
-from datasets.registry import Dataset, DatasetError, DatasetNotFoundError, as_int, existing_dir, register_dataset
-from datasets.rooms import MeshFiles
+from datasets.io import Shape, classify_topology, normalize_shape
+from datasets.registry import Dataset, as_int, register_dataset
+from datasets.rooms import MeshFiles, objects_folder
 
 #: Road half width (two 3.5 m lanes), sidewalk width and kerb height (m).
 ROAD_HALF_WIDTH, SIDEWALK_WIDTH, KERB_HEIGHT = 3.5, 2.5, 0.15
@@ -478,17 +478,8 @@ class StreetDataset(Dataset):
         self.seed = as_int(seed, "seed", minimum=0)
         self.length = as_int(length, "length", minimum=MIN_LENGTH)
         self.lidar = Lidar(beams=as_int(beams, "beams", minimum=2), azimuths=as_int(azimuths, "azimuths", minimum=4))
-        self.objects_dir: Path | None = None
-        self.source: BuiltinCars | CarFiles = BuiltinCars()
-        if objects_dir is not None and str(objects_dir) != "":
-            try:
-                self.objects_dir = existing_dir(objects_dir, self.name)
-            except DatasetNotFoundError as exc:
-                raise DatasetNotFoundError(str(exc).replace("data_dir", "objects_dir", 1)) from None
-            self.source = CarFiles(self.objects_dir)
-            if not self.source.files:
-                raise DatasetError(f"dataset 'street': no mesh files ({' '.join(MESH_EXTENSIONS)}) in "
-                                   f"objects_dir {self.objects_dir}")
+        self.objects_dir = objects_folder(objects_dir, self.name)
+        self.source: BuiltinCars | CarFiles = BuiltinCars() if self.objects_dir is None else CarFiles(self.objects_dir)
 
     def names(self) -> list[str]:
         return [street_name(i) for i in range(self.count)]
