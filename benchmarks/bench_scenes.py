@@ -6,14 +6,16 @@
 Scenes: rooms of 1, 4 and 16 room-units (``--dataset rooms --dataset-option tiles=1|2|4``, room 0,
 10,000 input points per room-unit, so the density is the same) and streets of 25, 50 and 100 m
 (``--dataset street --dataset-option length=L``, street 0: the LiDAR's own density). Each scene is one
-run of ``run_benchmark.py --task reconstruct --pc-blocks BLOCK --grid GRID`` per method on the
-process pool (2 workers, one thread each), the scene grid chosen by the run's rule (POCO's for a
-learned method). Rooms are scored with the ``default`` preset, streets with ``scene`` (metres).
+run of ``run_benchmark.py --task reconstruct --pc-blocks BLOCK --grid GRID`` on the process pool (2
+workers, one thread each) with a scene grid of a fixed cell size, so the work per unit of area is
+the same in every scene: a room-unit spans GRID - 1 cells (``--pc-scene-grid (GRID - 1) tiles + 1``),
+a street's cell is ``--cell`` metres (default 0.25). Rooms are scored with the ``default`` preset,
+streets with ``scene`` (metres).
 
 Printed per (scene, method): blocks (all / with points near), the blocks' seconds summed and the
 slowest block's, the merge's seconds, the largest peak resident memory of a block task, the run's
-wall seconds, CD; then per method the ratios to the smallest scene of its kind: area, blocks'
-seconds, peak memory. The targets: the blocks' seconds grow about like the area, the peak memory
+wall seconds, CD; then per method the ratios to the smallest scene of its kind: area (room-units;
+a street's GT area in m^2), blocks' seconds, peak memory. The targets: the blocks' seconds grow about like the area, the peak memory
 stays flat. ``--ray``: the 50 m street again on 2 Ray workers, its meshes compared with the process
 pool's vertex for vertex.
 """
@@ -31,6 +33,7 @@ import numpy as np
 import pandas as pd
 import trimesh
 
+from datasets import get_dataset
 from runner.cli import main as run_main
 
 ROOM_TILES = (1, 2, 4)
@@ -66,6 +69,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--block", type=int, default=48)
     parser.add_argument("--grid", type=int, default=64)
     parser.add_argument("--eval-points", default="200000")
+    parser.add_argument("--cell", type=float, default=0.25, help="a street's grid cell (m)")
     parser.add_argument("--out", default="/tmp/bench_scenes")
     parser.add_argument("--ray", action="store_true")
     args = parser.parse_args(argv)
@@ -79,13 +83,16 @@ def main(argv: list[str] | None = None) -> int:
     for tiles in ROOM_TILES:
         run = out / f"rooms-{tiles * tiles}"
         wall = _run([*common, *pool, "--dataset", "rooms", "--dataset-option", f"tiles={tiles}",
-                     "--pc-points", str(ROOM_POINTS * tiles * tiles), "--out", str(run)])
+                     "--pc-points", str(ROOM_POINTS * tiles * tiles), "--pc-scene-grid", str((args.grid - 1) * tiles + 1),
+                     "--out", str(run)])
         table += _rows(run, f"rooms x{tiles * tiles}", float(tiles * tiles), wall)
     for length in STREET_LENGTHS:
         run = out / f"street-{length}"
+        street = get_dataset("street", count=1, length=length).load("street_000")
+        grid = int(round(2.0 * street.meta["metres_per_unit"] / args.cell)) + 1  # the cube's side is 2 units
         wall = _run([*common, *pool, "--dataset", "street", "--dataset-option", f"length={length}",
-                     "--metric-preset", "scene", "--out", str(run)])
-        table += _rows(run, f"street {length} m", float(length), wall)
+                     "--pc-scene-grid", str(grid), "--metric-preset", "scene", "--out", str(run)])
+        table += _rows(run, f"street {length} m", street.meta["street"]["gt_area_m2"], wall)
     frame = pd.DataFrame(table)
     print(frame.round(3).to_markdown(index=False))
     ratios = []
@@ -99,8 +106,10 @@ def main(argv: list[str] | None = None) -> int:
     print(pd.DataFrame(ratios).round(2).to_markdown(index=False))
     if args.ray:
         run = out / "street-50-ray"
+        config = json.loads((out / "street-50" / "config.json").read_text())
         _run([*common, "--executor", "ray", "--workers", "2", "--threads", "1", "--dataset", "street",
-              "--dataset-option", "length=50", "--metric-preset", "scene", "--out", str(run)])
+              "--dataset-option", "length=50", "--pc-scene-grid", str(config["pc_scene_grid"]), "--metric-preset",
+              "scene", "--out", str(run)])
         for mesh in sorted((out / "street-50" / "meshes").glob("*/*.ply")):
             if mesh.name == "gt.ply":
                 continue

@@ -21,7 +21,7 @@ from methods.pointcloud.blocks import Block
 
 REPO = Path(__file__).resolve().parents[1]
 ARGS = ["--task", "reconstruct", "--dataset", "rooms", "--limit", "1", "--methods", "poisson", "--grid", "24",
-        "--pc-blocks", "12", "--pc-scene-grid", "32", "--pc-points", "4000", "--eval-points", "20000",
+        "--pc-blocks", "16", "--pc-scene-grid", "32", "--pc-points", "4000", "--eval-points", "20000",
         "--quiet", "--gallery", "0", "--no-cache"]
 POOL = ["--executor", "process", "--workers", "2"]
 
@@ -81,7 +81,7 @@ def test_a_stored_block_round_trips(tmp_path):
 
 @pytest.mark.slow
 def test_a_killed_block_wise_run_resumes_without_recomputing_finished_blocks(tmp_path):
-    """Kill -9 once some blocks are stored; the rerun runs only the others and keeps the stored files;
+    """Kill -9 once 3 of the 8 blocks are stored; the rerun runs only the others and keeps the stored files;
     the merged mesh is the one the same windows give in one process."""
     killed = tmp_path / "killed"
     proc = subprocess.Popen([sys.executable, "run_benchmark.py", *ARGS, *POOL, "--out", str(killed)], cwd=REPO,
@@ -90,24 +90,24 @@ def test_a_killed_block_wise_run_resumes_without_recomputing_finished_blocks(tmp
     stored: list[Path] = []
     while time.monotonic() < deadline and proc.poll() is None:
         stored = [p for p in killed.glob("blocks/*/b*.npz")]
-        if len(stored) >= 5:
+        if len(stored) >= 3:
             break
         time.sleep(0.02)
     assert proc.poll() is None, f"run ended before it could be killed: {proc.stderr.read().decode()[-800:]}"
     proc.send_signal(signal.SIGKILL)
     proc.wait(timeout=30)
     before = {p: p.stat().st_mtime_ns for p in killed.glob("blocks/*/b*.npz")}
-    assert 5 <= len(before) < 27  # scene grid 32 in blocks of 12: 3^3 blocks
+    assert 3 <= len(before) < 8  # scene grid 32 in blocks of 16: 2^3 blocks
 
     resumed = _run(["--resume"], killed)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
-    assert f"{27 - len(before)} blocks to run" in resumed.stderr
+    assert f"{8 - len(before)} blocks to run" in resumed.stderr
     assert all(p.stat().st_mtime_ns == t for p, t in before.items())  # finished blocks never recomputed
-    assert len(list(killed.glob("blocks/*/b*.npz"))) == 27
+    assert len(list(killed.glob("blocks/*/b*.npz"))) == 8
 
     with sqlite3.connect(killed / "results.db") as con:
         status, n_faces, info = con.execute("SELECT status, n_faces, info FROM jobs").fetchone()
-    assert status == "ok" and '"blocks": 27' in info and '"block_peak_rss_mib"' in info
+    assert status == "ok" and '"blocks": 8' in info and '"block_peak_rss_mib"' in info
     # the merged mesh is the one the windows give in one process from the same stored cloud
     from methods.base import get_method
     from methods.pointcloud.blocks import reconstruct_by_windows
@@ -115,7 +115,7 @@ def test_a_killed_block_wise_run_resumes_without_recomputing_finished_blocks(tmp
     (cloud,) = killed.glob(f"blocks/*/{CLOUD_FILE}")
     with np.load(cloud) as data:
         points = data["points"]
-    assert n_faces == len(reconstruct_by_windows(get_method("poisson"), points, 32, 12, 24).faces) > 0
+    assert n_faces == len(reconstruct_by_windows(get_method("poisson"), points, 32, 16, 24).faces) > 0
 
 
 def test_the_scene_grid_of_a_learned_method_follows_its_training_density():

@@ -23,11 +23,12 @@ Two ways to run a method by blocks, by what the method's output is made of:
   both conditions a block computes, for each of its edges, the very inputs the whole-grid
   reconstruction computes, so the block-wise mesh equals the whole one cell for cell (up to the
   float rounding of the network's batches of other sizes).
-* **Windows** (:func:`reconstruct_by_windows`, any point-cloud method): a block's owned points plus
-  ``halo_points`` on each side form a window of exactly ``window`` points per axis, mapped onto the
-  canonical cube by the translation and scale that put its points on the method's own ``window``
-  grid (so a learned method sees the density and the grid spacing it was trained at, POCO's rule for
-  large inputs). The method reconstructs the window's crop of the cloud as if it were a shape;
+* **Windows** (:func:`reconstruct_by_windows`, any point-cloud method): the window of ``window``
+  points per axis centred on a block (:func:`window_of`: ``(window - block) // 2`` points on its
+  lower side) is mapped onto the canonical cube by the translation and scale that put its points on
+  the method's own ``window`` grid (:func:`window_frame`; on a scene grid chosen by
+  :func:`density_scale`, a learned method sees the density and the grid spacing it was trained at,
+  POCO's rule for large inputs). The method reconstructs the window's crop of the cloud as if it were a shape;
   each block keeps the triangles whose centroid lies in its owned box, moved back to the scene's
   frame. The blocks' surfaces meet at the owned boxes' faces without stitching: where two windows
   disagree there the seam shows gaps or overlaps the size of that disagreement.
