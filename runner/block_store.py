@@ -147,6 +147,9 @@ def merged_extraction(job: JobSpec, method):
     else:
         V, F = merge_pieces((a["vertices"], a["faces"]) for _, a in found)
         out = Extraction(V, F, info={"blocks": len(found)})
+    with np.load(Path(job.blocks_dir) / CLOUD_FILE, mmap_mode="r") as cloud:
+        out.info.update(input_points=int(cloud["points"].shape[0]), used_sensors=bool(
+            method.uses_sensors and "sensors" in cloud.files))
     seconds = [a["meta"]["seconds"] for _, a in found]
     peaks = [a["meta"]["peak_rss_mib"] for _, a in found if a["meta"]["peak_rss_mib"] is not None]
     out.info.update(blocks=len(found), block_points_max=int(max((int(a["points"]) for _, a in found), default=0)),
