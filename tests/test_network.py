@@ -6,7 +6,7 @@ import torch
 import torch.nn.functional as F
 
 from methods.core.network import (ACTIVATIONS, GRID_INIT_SCALE, SEGMENT_SCALE, FeatureGrid, GridNetwork, endpoint_split,
-                             fast_softplus, make_network, trilinear, value_and_input_gradient,
+                             StackedNetworks, fast_softplus, make_network, trilinear, value_and_input_gradient,
                              value_and_input_gradients)
 
 BETA = 100.0
@@ -230,6 +230,41 @@ def test_backbone_errors():
     with pytest.raises(ValueError, match="channels must be >= 1"):
         FeatureGrid((4,), 0)
     assert isinstance(make_network(3, 1, **GRID), GridNetwork)
+
+
+def test_stacked_networks_are_independent_members_on_their_inputs():
+    """A stack's outputs are its members' side by side, each on the input with its zeroed columns
+    set to 0 (so constant along them); the members share no parameter, a member's loss moves only
+    its own weights; the config rebuilds the stack, and the stack's errors are one line each."""
+    torch.manual_seed(0)
+    members = [dict(GRID, out_dim=1), dict(depth=2, width=8, out_dim=2), dict(GRID, out_dim=1)]
+    net = make_network(3, 4, backbone="stack", members=members, zeroed=[[], [1], [0, 2]])
+    assert isinstance(net, StackedNetworks) and len(net.nets) == 3
+    x = torch.rand(40, 3) * 2 - 1
+    out = net(x)
+    assert out.shape == (40, 4)
+    assert torch.equal(out[:, 0:1], net.nets[0](x))
+    assert torch.equal(out[:, 1:3], net.nets[1](x * torch.tensor([1.0, 0.0, 1.0])))
+    moved = x + torch.tensor([0.3, -0.2, 0.5])  # member 2 sees y only: moving x and z changes nothing
+    assert torch.equal(net(x * torch.tensor([0.0, 1.0, 0.0]) + moved * torch.tensor([1.0, 0.0, 1.0]))[:, 3], out[:, 3])
+    ids = [{id(p) for p in m.parameters()} for m in net.nets]
+    assert not (ids[0] & ids[1]) and not (ids[0] & ids[2]) and not (ids[1] & ids[2])
+    net.member(1, x).sum().backward()
+    assert all(p.grad is None for k in (0, 2) for p in net.nets[k].parameters())
+    assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in net.nets[1].parameters())
+    assert [type(m) for m in net.modules()].count(FeatureGrid) == 2
+    rebuilt = make_network(**net.config)
+    rebuilt.load_state_dict(net.state_dict())
+    assert torch.equal(rebuilt(x), out) and net.config["members"][1] == dict(depth=2, width=8, beta=100.0,
+                                                                             activation="softplus", out_dim=2)
+    with pytest.raises(ValueError, match="sum to 4, not 3"):
+        make_network(3, 3, backbone="stack", members=members)
+    with pytest.raises(ValueError, match="zeroed columns must lie in"):
+        make_network(3, 4, backbone="stack", members=members, zeroed=[[], [3], []])
+    with pytest.raises(ValueError, match="needs members"):
+        make_network(3, 4, backbone="stack")
+    with pytest.raises(ValueError, match="not of 'grid'"):
+        make_network(3, 1, members=members, **GRID)
 
 
 def _input_gradient_loss(out, grad):

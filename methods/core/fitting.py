@@ -173,11 +173,11 @@ def parameter_groups(model: torch.nn.Module, budget: Budget) -> list[dict]:
 
     The MLP weights (all of an MLP; the head of a :class:`methods.core.network.GridNetwork`, the decoders
     of a :class:`methods.core.network.LODNetwork`): ``lr`` -> ``lr_final``, the optimizer's weight decay.
-    The feature grid (the network's ``encoder``), if any: ``lr_grid`` ->
+    The feature grids (every :class:`methods.core.network.FeatureGrid` of the network: its ``encoder``,
+    or each member's in a :class:`methods.core.network.StackedNetworks`), if any: ``lr_grid`` ->
     ``lr_grid_final`` (``lr`` -> ``lr_final`` under a budget without a grid), weight decay 0. ``lr_start``/``lr_end`` are read by :func:`fit` each step.
     """
-    encoder = getattr(model, "encoder", None)
-    grid = list(encoder.parameters()) if isinstance(encoder, FeatureGrid) else []
+    grid = [p for module in model.modules() if isinstance(module, FeatureGrid) for p in module.parameters()]
     in_grid = {id(p) for p in grid}
     groups = [{"params": [p for p in model.parameters() if id(p) not in in_grid],
                "lr_start": budget.lr, "lr_end": budget.lr_final}]

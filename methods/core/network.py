@@ -11,6 +11,10 @@ Backbones (:data:`BACKBONES`, chosen by the budget, :mod:`methods.core.fitting`)
   encoded as ``[enc(p), p]``; a segment (u, v) is encoded as ``[enc(u), u, enc(v), v]`` with the
   *same* grid, so the field stays a function of the segment (see :class:`GridNetwork`).
 
+Networks of single methods (:data:`NETWORKS`): NGLOD's :class:`LODNetwork` (``'nglod'``) and
+:class:`StackedNetworks` (``'stack'``: independent networks of any of these kinds side by side, e.g.
+UODF's one per axis).
+
 Clamped Softplus
 ----------------
 ``softplus_beta(x) = log(1 + exp(beta x)) / beta``. torch's kernel evaluates ``exp(beta x)`` for all x,
@@ -345,10 +349,57 @@ def _linear_init(shape: tuple[int, ...], fan_in: int) -> torch.Tensor:
     return torch.empty(shape).uniform_(-bound, bound)
 
 
+class StackedNetworks(nn.Module):
+    """The ``'stack'`` network: independent member networks side by side on one input, their outputs
+    concatenated in member order (a method that fits one network per output, e.g. UODF's one per axis).
+
+    Member k is ``make_network(in_dim, **members[k])`` (each config names its own ``out_dim``; they
+    sum to ``out_dim``) applied to the input with the columns ``zeroed[k]`` set to 0, so a member
+    can be a function of some coordinates only (e.g. of the line x + t e_a through a point: zero
+    column a). No parameter is shared, so under a per-parameter optimizer (AdamW) one fit of the
+    stack on the sum of the members' losses is the members' separate fits with the same steps and
+    batches. The members are built in order (this fixes the parameter order, hence the weights a
+    seed gives). Inputs (B, in_dim) -> outputs (B, out_dim).
+    """
+
+    def __init__(self, in_dim: int, out_dim: int, members: Sequence[dict],
+                 zeroed: Sequence[Sequence[int]] | None = None):
+        super().__init__()
+        members = [dict(m) for m in members]
+        zeroed = [[] for _ in members] if zeroed is None else [sorted(int(c) for c in z) for z in zeroed]
+        if not members or len(zeroed) != len(members):
+            raise ValueError(f"a stack needs >= 1 member and one zeroed list per member, got {len(members)} "
+                             f"members and {len(zeroed)} lists")
+        if sum(int(m["out_dim"]) for m in members) != out_dim:
+            raise ValueError(f"the members' out_dim sum to {sum(int(m['out_dim']) for m in members)}, not {out_dim}")
+        if any(c < 0 or c >= in_dim for z in zeroed for c in z):
+            raise ValueError(f"zeroed columns must lie in [0, {in_dim}), got {zeroed}")
+        self.nets = nn.ModuleList(make_network(in_dim, **m) for m in members)
+        self.zeroed = zeroed
+        self.config = dict(backbone="stack", in_dim=int(in_dim), out_dim=int(out_dim),
+                           members=[net.config | {"out_dim": int(m["out_dim"])} for net, m in zip(self.nets, members)],
+                           zeroed=zeroed)
+        for m in self.config["members"]:
+            m.pop("in_dim", None)
+
+    def member_input(self, k: int, x: torch.Tensor) -> torch.Tensor:
+        """Member k's input: ``x`` with the columns ``zeroed[k]`` set to 0 (``x`` itself if none)."""
+        if not self.zeroed[k]:
+            return x
+        return x.index_fill(1, torch.tensor(self.zeroed[k], device=x.device), 0.0)
+
+    def member(self, k: int, x: torch.Tensor) -> torch.Tensor:
+        """Member k's outputs (B, its out_dim) for the stack's input ``x`` (B, in_dim)."""
+        return self.nets[k](self.member_input(k, x))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.cat([self.member(k, x) for k in range(len(self.nets))], dim=1)
+
+
 #: Backbone names (the budget's ``backbone``).
 BACKBONES = ("mlp", "grid")
 #: Every network :func:`make_network` builds: the backbones and the networks of single methods.
-NETWORKS = BACKBONES + ("nglod",)
+NETWORKS = BACKBONES + ("nglod", "stack")
 
 
 class EndpointSplit(NamedTuple):
@@ -474,7 +525,8 @@ def value_and_input_gradients(model: nn.Module, x: torch.Tensor, output_indices:
 
 def make_network(in_dim: int, out_dim: int, depth: int = 9, width: int = 512, beta: float = 100.0,
                  activation: str = "softplus", backbone: str = "mlp",
-                 grid_resolutions: Sequence[int] | None = None, grid_channels: int | None = None) -> nn.Module:
+                 grid_resolutions: Sequence[int] | None = None, grid_channels: int | None = None,
+                 members: Sequence[dict] | None = None, zeroed: Sequence[Sequence[int]] | None = None) -> nn.Module:
     """The network a budget names (defaults = *paper*: the paper's 9 x 512 Softplus(100) MLP).
 
     Parameters
@@ -485,12 +537,21 @@ def make_network(in_dim: int, out_dim: int, depth: int = 9, width: int = 512, be
         (:class:`LODNetwork`: ``width`` its decoders' hidden width; depth, beta and activation unused).
     grid_resolutions, grid_channels : the :class:`FeatureGrid` (``'grid'`` and ``'nglod'``; required
         there, refused for ``'mlp'``).
+    members, zeroed : the ``'stack'`` network (:class:`StackedNetworks`: each member's own keyword
+        arguments, its ``out_dim`` included, and its zeroed input columns; depth, width, beta,
+        activation and the grid settings unused); refused for the other networks.
 
     ``make_network(**model.config)`` rebuilds any network made here (a config without ``backbone``,
     as every MLP's, is an MLP).
     """
     if backbone not in NETWORKS:
         raise ValueError(f"unknown backbone '{backbone}'; known: {', '.join(NETWORKS)}")
+    if backbone == "stack":
+        if members is None:
+            raise ValueError("the 'stack' network needs members")
+        return StackedNetworks(in_dim, out_dim, members, zeroed)
+    if members is not None or zeroed is not None:
+        raise ValueError(f"members/zeroed are settings of the 'stack' network, not of '{backbone}'")
     grid_given = grid_resolutions is not None or grid_channels is not None
     if backbone == "mlp":
         if grid_given:
