@@ -26,7 +26,6 @@ import argparse
 import json
 import shutil
 import sqlite3
-import time
 from pathlib import Path
 
 import numpy as np
@@ -34,19 +33,11 @@ import pandas as pd
 import trimesh
 
 from datasets import get_dataset
-from runner.cli import main as run_main
+from benchmarks.bench_score import run_timed
 
 ROOM_TILES = (1, 2, 4)
 STREET_LENGTHS = (25, 50, 100)
 ROOM_POINTS = 10_000
-
-
-def _run(argv: list[str]) -> float:
-    t0 = time.perf_counter()
-    code = run_main(argv)
-    if code not in (0, 3):
-        raise SystemExit(f"run failed with exit {code}: {' '.join(argv)}")
-    return time.perf_counter() - t0
 
 
 def _rows(out: Path, scene: str, area: float, wall: float) -> list[dict]:
@@ -82,7 +73,7 @@ def main(argv: list[str] | None = None) -> int:
     table = []
     for tiles in ROOM_TILES:
         run = out / f"rooms-{tiles * tiles}"
-        wall = _run([*common, *pool, "--dataset", "rooms", "--dataset-option", f"tiles={tiles}",
+        wall = run_timed([*common, *pool, "--dataset", "rooms", "--dataset-option", f"tiles={tiles}",
                      "--pc-points", str(ROOM_POINTS * tiles * tiles), "--pc-scene-grid", str((args.grid - 1) * tiles + 1),
                      "--out", str(run)])
         table += _rows(run, f"rooms x{tiles * tiles}", float(tiles * tiles), wall)
@@ -90,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
         run = out / f"street-{length}"
         street = get_dataset("street", count=1, length=length).load("street_000")
         grid = int(round(2.0 * street.meta["metres_per_unit"] / args.cell)) + 1  # the cube's side is 2 units
-        wall = _run([*common, *pool, "--dataset", "street", "--dataset-option", f"length={length}",
+        wall = run_timed([*common, *pool, "--dataset", "street", "--dataset-option", f"length={length}",
                      "--pc-scene-grid", str(grid), "--metric-preset", "scene", "--out", str(run)])
         table += _rows(run, f"street {length} m", street.meta["street"]["gt_area_m2"], wall)
     frame = pd.DataFrame(table)
@@ -107,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.ray:
         run = out / "street-50-ray"
         config = json.loads((out / "street-50" / "config.json").read_text())
-        _run([*common, "--executor", "ray", "--workers", "2", "--threads", "1", "--dataset", "street",
+        run_timed([*common, "--executor", "ray", "--workers", "2", "--threads", "1", "--dataset", "street",
               "--dataset-option", "length=50", "--pc-scene-grid", str(config["pc_scene_grid"]), "--metric-preset",
               "scene", "--out", str(run)])
         for mesh in sorted((out / "street-50" / "meshes").glob("*/*.ply")):

@@ -24,7 +24,8 @@ from methods.base import METHODS
 from runner.cli import main as run_main
 
 
-def _run(argv: list[str]) -> float:
+def run_timed(argv: list[str]) -> float:
+    """Wall seconds of one ``run_benchmark.py`` run in this process; exits when it fails."""
     t0 = time.perf_counter()
     code = run_main(argv)
     if code not in (0, 3):
@@ -42,12 +43,12 @@ def main(argv: list[str] | None = None) -> int:
     shutil.rmtree(out, ignore_errors=True)
     common = ["--dataset", "abc", "--data-dir", args.data_dir, "--eval-points", args.eval_points, "--quiet",
               "--gallery", "0", "--executor", "local", "--threads", "1", "--cache-dir", str(out / "cache")]
-    builtin_wall = _run(["--task", "reconstruct", "--methods", "poisson", "--out", str(out / "builtin"), *common])
+    builtin_wall = run_timed(["--task", "reconstruct", "--methods", "poisson", "--out", str(out / "builtin"), *common])
     flat = out / "predictions"  # <shape>.ply: the built-in run's meshes under the matching rule
     flat.mkdir()
     for mesh in (out / "builtin" / "meshes").glob("*/poisson.ply"):
         (flat / f"{mesh.parent.name}.ply").symlink_to(mesh)
-    score_wall = _run(["score", "--pred-dir", str(flat), "--name", "poisson-again",
+    score_wall = run_timed(["score", "--pred-dir", str(flat), "--name", "poisson-again",
                        "--pred-frame", "canonical", "--out", str(out / "score"), *common])
     METHODS.unregister("poisson-again")
     a = pd.read_csv(out / "builtin" / "results.csv").set_index("shape")
