@@ -42,12 +42,11 @@ from typing import Callable, Iterable
 
 import numpy as np
 from pykdtree.kdtree import KDTree
-from scipy import ndimage
 
 from benchmark.grid import LOWER, edge_inputs, ijk_axis_to_edge_index, spacing
 from methods.base import Extraction
 from methods.extractors.edc import edge_dual_contouring
-from methods.pointcloud.neighbourhoods import nearest_distance
+from methods.pointcloud.neighbourhoods import dilate_by_ball, nearest_distance
 
 __all__ = ["Block", "blocks", "occupied_blocks", "owned_box", "crop", "band_edges_in_block", "halo_is_enough", "HaloTooSmall",
            "BlockEdges", "block_edges", "merge_edges", "reconstruct_by_edges", "window_frame", "clip_to_box",
@@ -110,8 +109,7 @@ def band_edges_in_block(cloud: np.ndarray, block: Block, radius: float) -> np.nd
     near = np.all((ijk >= -steps) & (ijk < np.asarray(shape) + steps), axis=1)
     padded = np.zeros(tuple(s + 2 * steps for s in shape), dtype=bool)
     padded[tuple((ijk[near] + steps).T)] = True
-    ball = np.linalg.norm(np.indices((2 * steps + 1,) * 3) - steps, axis=0) <= steps
-    mask = ndimage.binary_dilation(padded, structure=ball)[tuple(slice(steps, steps + s) for s in shape)]
+    mask = dilate_by_ball(padded, steps)[tuple(slice(steps, steps + s) for s in shape)]
     owned = tuple(int(v) for v in np.asarray(block.hi) - lo)
     start = mask[:owned[0], :owned[1], :owned[2]]
     ids = []

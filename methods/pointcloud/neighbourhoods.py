@@ -81,7 +81,11 @@ def near_cloud_mask(cloud: np.ndarray, N: int, radius: float) -> np.ndarray:
     ijk = np.clip(np.rint((np.asarray(cloud) - LOWER) / h).astype(np.int64), 0, N - 1)
     mask = np.zeros((N, N, N), dtype=bool)
     mask[tuple(ijk.T)] = True
-    steps = int(np.ceil(radius / h)) + 1
+    return dilate_by_ball(mask, int(np.ceil(radius / h)) + 1)
+
+
+def dilate_by_ball(mask: np.ndarray, steps: int) -> np.ndarray:
+    """``mask`` dilated by the ball of ``steps`` grid steps (scipy.ndimage)."""
     ball = np.linalg.norm(np.indices((2 * steps + 1,) * 3) - steps, axis=0) <= steps
     return ndimage.binary_dilation(mask, structure=ball)
 
