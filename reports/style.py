@@ -34,6 +34,12 @@ def method_order(methods, preferred=()) -> list[str]:
     return first + registered + [m for m in rest if m not in METHODS]
 
 
+def fit_owner(method: str) -> str:
+    """The method whose fits ``method`` extracts (``sdf`` for ``sdf-ndc``: its ``fit_name``); itself
+    when it fits its own network or the registry does not know it."""
+    return METHODS.get(method).fit_name if method in METHODS else method
+
+
 def method_colors(methods: list[str]) -> dict[str, str]:
     """{method: '#rrggbb'}: the registry's colour, else the next unused colour of :data:`PALETTE`."""
     colors = {m: presentation(m).color for m in methods if m in METHODS}

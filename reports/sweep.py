@@ -53,7 +53,7 @@ from reports.plots import STYLE, metric_panels, panels_svg, plot_label
 from reports.protocol import check_context, headline_metrics, protocol_caption, report_title, sweep_spec
 from reports.significance import mean_intervals
 from reports.statistics import TIE, Statistics, Tests, interval_text, legend, tests_against_best
-from reports.style import method_colors, method_order
+from reports.style import fit_owner, method_colors, method_order
 from reports.table import Cell, Table, fmt, md_escape, metric_header, metric_tex_header
 from reports.table import table_latex, table_markdown_section, tex_escape
 
@@ -408,14 +408,28 @@ def sweep_plot(sweep: Sweep, key: str) -> bytes | None:
         return panels_svg(fig, axes, len(sweep.metrics), nrows)
 
 
+def cost_seconds(sweep: Sweep, key: str) -> pd.DataFrame:
+    """The x of each cost-plot point: the mean seconds of the fits that ran, per value of ``key``
+    (rows, positions) and series (columns). A series whose method extracts another method's fits
+    (``sdf-ndc``: ``sdf``'s, :func:`reports.style.fit_owner`) and ran none itself gets the seconds
+    of that method's series at the same value: what its field cost."""
+    seconds = sweep.stats[key]["mean"][FIT].unstack(SERIES)
+    for s in [s for s in sweep.series if s in seconds.columns]:
+        owner = s.replace(sweep.method_of[s], fit_owner(sweep.method_of[s]), 1)
+        if owner != s and owner in seconds.columns:
+            seconds[s] = seconds[s].fillna(seconds[owner])
+    return seconds
+
+
 def cost_plot(sweep: Sweep, key: str) -> bytes | None:
     """One panel per headline metric against the mean seconds of the fits that ran (log x): a line
-    per series through the key's values, its 95% bootstrap band of the mean over shapes shaded,
-    each point labelled with its value. For a budget key (``budget.iterations``, ...), where the
+    per series through the key's values (:func:`cost_seconds`: a method extracting another's fits
+    at that method's seconds), its 95% bootstrap band of the mean over shapes shaded, each point
+    labelled with its value. For a budget key (``budget.iterations``, ...), where the
     x axis of :func:`sweep_plot` is the setting and this one its cost. SVG bytes; None when no
     series has fit seconds at two values or more."""
     stats = sweep.stats[key]
-    seconds = stats["mean"][FIT].unstack(SERIES)
+    seconds = cost_seconds(sweep, key)
     fitted = [s for s in sweep.series if s in seconds.columns and seconds[s].notna().sum() >= 2]
     if not sweep.metrics or not fitted:
         return None

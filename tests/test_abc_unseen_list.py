@@ -106,3 +106,18 @@ def test_shared_copies_match_their_sha256():
         warnings.simplefilter("error")  # a list entry without its file would warn
         dataset = get_dataset("abc", data_dir=UNSEEN_DIR, list_file=LIST, strict=True)
     assert dataset.names() == ENTRIES
+
+
+SCALING_LIST = REPO / "lists" / "abc-22-unseen-12.txt"
+
+
+def test_the_scaling_list_is_twelve_of_our_abc_parts_outside_ndc_training_range():
+    entries = read_list_file(SCALING_LIST)
+    assert len(entries) == 12 and entries == sorted(entries)
+    assert [e for e in entries if int(e[:8]) in NDC_TRAINING_IDS] == []
+    if not OUR_ABC_DIR.is_dir():
+        pytest.skip(f"{OUR_ABC_DIR} is absent: the list's files are read from it")
+    stems = {p.name.rsplit(".", 1)[0] for p in OUR_ABC_DIR.iterdir()}
+    assert [e for e in entries if e not in stems] == []
+    unseen = sorted(s for s in stems if re.match(r"\d{8}", s) and int(s[:8]) not in NDC_TRAINING_IDS)
+    assert entries == unseen[:12]  # the header's rule: the first 12 by id of the unseen ones

@@ -231,3 +231,17 @@ def test_a_budget_sweep_plots_each_metric_against_its_fit_seconds():
     oracle = threshold_results().assign(fit_s=np.nan)
     assert cost_plot(build_sweep(oracle, SWEEP), "sals.o_threshold") is None  # nothing fitted: no cost axis
     assert 'metrics against the fit seconds' in reports.sweep.sweep_html(sweep)
+
+
+def test_a_method_extracting_anothers_fits_is_plotted_at_that_fits_seconds():
+    from reports.sweep import cost_seconds
+
+    context = dict(CONTEXT, methods=["sdf", "sdf-ndc"], shapes=SHAPES, seeds=[0],
+                   sweep={"budget.iterations": [750, 3000]})
+    rows = [job(shape, m, "neural", 0.002, **{"sweep.budget.iterations": v})
+            | {"fit_s": seconds if m == "sdf" else np.nan, "cache": "" if m == "sdf" else "weights"}
+            for m in ("sdf", "sdf-ndc") for v, seconds in ((750, 6.0), (3000, 24.0)) for shape in SHAPES]
+    sweep = build_sweep(pd.DataFrame(rows), context)
+    assert sweep.stats["budget.iterations"]["mean"]["fit_s"].unstack("@series")["sdf-ndc"].isna().all()
+    seconds = cost_seconds(sweep, "budget.iterations")
+    assert seconds["sdf-ndc"].tolist() == [6.0, 24.0] == seconds["sdf"].tolist()  # sdf-ndc extracts sdf's fits
