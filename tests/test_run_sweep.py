@@ -139,7 +139,7 @@ def test_every_shipped_recipe_resolves_against_the_registry(name, tmp_path):
 def test_a_killed_sweep_resumes_to_the_uninterrupted_table(tmp_path):
     env = {**os.environ, "SALSBENCH_CACHE": str(tmp_path / "cache")}
     args = ["--methods", "test_sdf", "test_occ", "--mode", "oracle", "--eval-points", "5000", "--limit", "2",
-            "--sweep", "grid=20,24,28", "--sweep", "test_sdf.level=0,0.01", "--no-cache", "--plugin", PLUGIN,
+            "--sweep", "grid=20,24", "--sweep", "test_sdf.level=0,0.01", "--no-cache", "--plugin", PLUGIN,
             "--quiet", "--gallery", "0"]
     killed = tmp_path / "killed"
     kill_after_ok_jobs(args, killed, env, ok_jobs=2)
@@ -152,7 +152,7 @@ def test_a_killed_sweep_resumes_to_the_uninterrupted_table(tmp_path):
     assert done.returncode == 0, done.stderr[-2000:]
     columns = ["shape", "method", "sweep.grid", "sweep.test_sdf.level", "status", "cd", "n_faces"]
     a, b = results(killed), results(straight)
-    assert len(a) == 2 * (3 + 3 * 2)  # per shape: test_occ at 3 grids, test_sdf at 3 grids x 2 levels
+    assert len(a) == 2 * (2 + 2 * 2)  # per shape: test_occ at 2 grids, test_sdf at 2 grids x 2 levels
     pd.testing.assert_frame_equal(a[columns], b[columns])
 
 
