@@ -1,7 +1,7 @@
 """How block-wise reconstruction scales with the scene: seconds and peak memory against scene area.
 
     .venv/bin/python -m benchmarks.bench_scenes [--methods poisson sals-knn] [--budget cpu]
-        [--block 48] [--grid 64] [--out /tmp/bench_scenes] [--ray]
+        [--block 48] [--grid 64] [--out /tmp/bench_scenes] [--cache-dir DIR] [--ray]
 
 Scenes: rooms of 1, 4 and 16 room-units (``--dataset rooms --dataset-option tiles=1|2|4``, room 0,
 10,000 input points per room-unit, so the density is the same) and streets of 25, 50 and 100 m
@@ -62,15 +62,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--eval-points", default="200000")
     parser.add_argument("--cell", type=float, default=0.25, help="a street's grid cell (m)")
     parser.add_argument("--out", default="/tmp/bench_scenes")
+    parser.add_argument("--cache-dir", default="", help="the runs' cache (default: the user's, where trained "
+                                                       "networks already are)")
     parser.add_argument("--ray", action="store_true")
     args = parser.parse_args(argv)
     out = Path(args.out)
     shutil.rmtree(out, ignore_errors=True)
     common = ["--task", "reconstruct", "--methods", *args.methods, "--budget", args.budget, "--grid", str(args.grid),
               "--pc-blocks", str(args.block), "--eval-points", args.eval_points, "--quiet", "--gallery", "0",
-              "--cache-dir", str(out / "cache"), "--dataset-option", "count=1"]
+              "--dataset-option", "count=1", *(["--cache-dir", args.cache_dir] if args.cache_dir else [])]
     pool = ["--executor", "process", "--workers", "2", "--threads", "1"]
-    table = []
+    table, street_grids = [], {}
     for tiles in ROOM_TILES:
         run = out / f"rooms-{tiles * tiles}"
         wall = run_timed([*common, *pool, "--dataset", "rooms", "--dataset-option", f"tiles={tiles}",
@@ -80,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     for length in STREET_LENGTHS:
         run = out / f"street-{length}"
         street = get_dataset("street", count=1, length=length).load("street_000")
-        grid = int(round(2.0 * street.meta["metres_per_unit"] / args.cell)) + 1  # the cube's side is 2 units
+        grid = street_grids[length] = int(round(2.0 * street.meta["metres_per_unit"] / args.cell)) + 1  # 2 units
         wall = run_timed([*common, *pool, "--dataset", "street", "--dataset-option", f"length={length}",
                      "--pc-scene-grid", str(grid), "--metric-preset", "scene", "--out", str(run)])
         table += _rows(run, f"street {length} m", street.meta["street"]["gt_area_m2"], wall)
@@ -97,9 +99,8 @@ def main(argv: list[str] | None = None) -> int:
     print(pd.DataFrame(ratios).round(2).to_markdown(index=False))
     if args.ray:
         run = out / "street-50-ray"
-        config = json.loads((out / "street-50" / "config.json").read_text())
         run_timed([*common, "--executor", "ray", "--workers", "2", "--threads", "1", "--dataset", "street",
-              "--dataset-option", "length=50", "--pc-scene-grid", str(config["pc_scene_grid"]), "--metric-preset",
+              "--dataset-option", "length=50", "--pc-scene-grid", str(street_grids[50]), "--metric-preset",
               "scene", "--out", str(run)])
         for mesh in sorted((out / "street-50" / "meshes").glob("*/*.ply")):
             if mesh.name == "gt.ply":
