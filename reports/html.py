@@ -135,7 +135,7 @@ def _gt_caption(vertices: np.ndarray, faces: np.ndarray) -> str:
 
 
 def _prediction_figure(summary: Summary, shape: str, method: str, path: Path, gt, bounds, size: int,
-                       vmax: float) -> tuple[str, str, str]:
+                       vmax: float, up: str = "") -> tuple[str, str, str]:
     """(shaded thumbnail, error-coloured thumbnail, caption) of one prediction, or placeholders."""
     jobs = summary.results[(summary.results["shape"] == shape) & (summary.results["method"] == method)]
     good = ok_jobs(jobs)
@@ -155,10 +155,11 @@ def _prediction_figure(summary: Summary, shape: str, method: str, path: Path, gt
             V, F = render.face_subset(V, F, MAX_RENDER_FACES)
             notes.append(f"thumbnail of a random {MAX_RENDER_FACES:,}-face subset")
         if gt is not None and len(gt[1]):
-            shaded_png, err_png = render.render_mesh_and_error(V, F, *gt, vmax, size=(size, size), bounds=bounds)
+            shaded_png, err_png = render.render_mesh_and_error(V, F, *gt, vmax, size=(size, size), bounds=bounds,
+                                                               up=up)
             shaded, err = _img(shaded_png, f"{shape} {method}"), _img(err_png, f"{shape} {method} error")
         else:
-            shaded = _img(render.render_mesh(V, F, size=(size, size), bounds=bounds), f"{shape} {method}")
+            shaded = _img(render.render_mesh(V, F, size=(size, size), bounds=bounds, up=up), f"{shape} {method}")
             err = _placeholder("missing", "no GT", "distance colouring needs gt.ply")
     except Exception as exc:  # noqa: BLE001 -- one bad mesh never breaks the report
         return _placeholder("failed", "render failed", one_line(exc)), "", ""
@@ -166,8 +167,9 @@ def _prediction_figure(summary: Summary, shape: str, method: str, path: Path, gt
 
 
 def gallery_html(summary: Summary, meshes_dir: Path | None, colors: dict, limit: int, size: int,
-                 vmax: float) -> str:
-    """One card per shape (the first ``limit``): ``meshes_dir/<shape>/gt.ply`` and ``<method>.ply``."""
+                 vmax: float, up: str = "") -> str:
+    """One card per shape (the first ``limit``): ``meshes_dir/<shape>/gt.ply`` and ``<method>.ply``,
+    rendered with the dataset's ``up`` axis ('x', 'y', 'z'; '': y) up in the image."""
     if meshes_dir is None or not Path(meshes_dir).is_dir():
         return '<p class="muted">No meshes directory: thumbnails are not available for this report.</p>'
     if limit == 0:
@@ -187,13 +189,13 @@ def gallery_html(summary: Summary, meshes_dir: Path | None, colors: dict, limit:
                 if len(gt[1]):
                     used = gt[0][gt[1].ravel()]
                     bounds = (used.min(0), used.max(0))
-                figures = [("GT", _img(render.render_mesh(*gt, size=(size, size), bounds=bounds,
+                figures = [("GT", _img(render.render_mesh(*gt, size=(size, size), bounds=bounds, up=up,
                                                           base_color=render.GT_COLOR), f"{shape} GT"),
                             mini_legend(vmax), _gt_caption(*gt))]
             except Exception as exc:  # noqa: BLE001
                 gt = None
                 figures = [("GT", _placeholder("missing", "unreadable GT", one_line(exc)), "", "")]
-        figures += [(m, *_prediction_figure(summary, shape, m, folder / f"{m}.ply", gt, bounds, size, vmax))
+        figures += [(m, *_prediction_figure(summary, shape, m, folder / f"{m}.ply", gt, bounds, size, vmax, up))
                     for m in summary.methods]
         html_figures = []
         for name, top, bottom, caption in figures:
@@ -321,7 +323,7 @@ def write_html(path: Path, summary: Summary, timing: pd.DataFrame, context: dict
     if len(summary.shapes) > plots.MAX_SHAPE_ROWS:
         shape_tables = f"<details><summary>Per-shape tables ({len(summary.shapes)} shapes)</summary>{shape_tables}</details>"
     gallery = colorbar_html(ERROR_VMAX, context["grid"]) + gallery_html(
-        summary, meshes_dir, colors, gallery_limit, thumb_size, ERROR_VMAX)
+        summary, meshes_dir, colors, gallery_limit, thumb_size, ERROR_VMAX, context.get("up_axis") or "")
     context_html = ('<details><summary>Run context</summary><pre>'
                     + esc(dumps(context, indent=2)) + "</pre></details>")
     sections = [

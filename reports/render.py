@@ -39,15 +39,24 @@ _SPECULAR = 0.18
 _SHININESS = 24.0
 
 
-def camera_rotation(azimuth_deg: float, elevation_deg: float) -> np.ndarray:
+#: Rotations that take a frame whose up axis is the key to one whose up axis is +y (x -> y -> z
+#: cycled, so each is a proper rotation); '' (up not stated) is taken as y.
+_TO_Y_UP = {"": np.eye(3), "y": np.eye(3), "z": np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]]),
+            "x": np.array([[0, 0, 1.0], [1, 0, 0], [0, 1, 0]])}
+
+
+def camera_rotation(azimuth_deg: float, elevation_deg: float, up: str = "y") -> np.ndarray:
     """3x3 rotation whose rows are the camera's right, up and back (towards viewer) axes in world
-    coordinates; camera coordinates are ``R @ p``. Azimuth turns about +y, elevation tilts towards +y."""
+    coordinates; camera coordinates are ``R @ p``. Azimuth turns about the world's ``up`` axis ('x',
+    'y' or 'z'), elevation tilts towards it, so that axis points up in the image."""
+    if up not in _TO_Y_UP:
+        raise ValueError(f"up axis {up!r}: not one of 'x', 'y', 'z'")
     az, el = np.radians(azimuth_deg), np.radians(elevation_deg)
     back = np.array([np.sin(az) * np.cos(el), np.sin(el), np.cos(az) * np.cos(el)])
     right = np.cross([0.0, 1.0, 0.0], back)
     right /= np.linalg.norm(right)
-    up = np.cross(back, right)
-    return np.stack([right, up, back])
+    up_axis = np.cross(back, right)
+    return np.stack([right, up_axis, back]) @ _TO_Y_UP[up]
 
 
 def _box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -176,25 +185,27 @@ def render_mesh(
     view: tuple[float, float] = DEFAULT_VIEW,
     base_color=BASE_COLOR,
     outline: bool = True,
+    up: str = "y",
 ) -> bytes:
     """PNG bytes of a shaded triangle mesh, rendered headless on the CPU.
 
     vertices (n,3) float, faces (m,3) int (canonical frame). colors: None (``base_color``), (3,) RGB,
     (n,3) per-vertex or (m,3) per-face RGB in [0,1] (or 0..255). size = (width, height) in pixels.
     bounds: ((3,) lo, (3,) hi) box that fixes the framing (pass the GT's box to line up a shape's
-    renders); default: the mesh's own box. view = (azimuth, elevation) degrees. An empty mesh (or one
-    with no finite triangle) gives a blank image of the same size.
+    renders); default: the mesh's own box. view = (azimuth, elevation) degrees about the ``up`` axis
+    ('x', 'y' or 'z': kept up in the image). An empty mesh (or one with no finite triangle) gives a
+    blank image of the same size.
     """
     V, F, width, height = _checked(vertices, faces, size)
     mode, color_values = _resolve_colors(colors, len(V), len(F), np.asarray(base_color, dtype=float))
-    frame = _Frame(V, F, width, height, bounds, view)
+    frame = _Frame(V, F, width, height, bounds, view, up)
     return _encode_png(frame.shade(mode, color_values, outline))
 
 
 def render_mesh_and_error(vertices, faces, gt_vertices, gt_faces, vmax: float,
                           size: tuple[int, int] = (256, 256), *, bounds=None,
                           view: tuple[float, float] = DEFAULT_VIEW, base_color=BASE_COLOR,
-                          outline: bool = True) -> tuple[bytes, bytes]:
+                          outline: bool = True, up: str = "y") -> tuple[bytes, bytes]:
     """PNG bytes of a mesh shaded in ``base_color`` and of the same view coloured by each vertex's
     distance to the GT mesh (:func:`error_colors` of :func:`distances_to_mesh`, ramp up to ``vmax``).
 
@@ -204,7 +215,7 @@ def render_mesh_and_error(vertices, faces, gt_vertices, gt_faces, vmax: float,
     (the others cannot colour one). Arguments as :func:`render_mesh`.
     """
     V, F, width, height = _checked(vertices, faces, size)
-    frame = _Frame(V, F, width, height, bounds, view)
+    frame = _Frame(V, F, width, height, bounds, view, up)
     shaded = _encode_png(frame.shade("uniform", np.asarray(base_color, dtype=float), outline))
     distances = np.full(len(V), np.nan)
     seen = frame.visible_vertices()
@@ -227,7 +238,7 @@ class _Frame:
     """One rasterisation of a mesh (its finite faces) through the camera, supersampled: which face
     and barycentric weights cover each pixel, and its depth; :meth:`shade` colours it."""
 
-    def __init__(self, V, F, width, height, bounds, view):
+    def __init__(self, V, F, width, height, bounds, view, up="y"):
         self.width, self.height = width, height
         finite_faces = np.isfinite(V).all(1)[F].all(1) if len(F) else np.zeros(0, bool)
         self.empty = not finite_faces.any()
@@ -238,7 +249,7 @@ class _Frame:
             lo, hi = used.min(0), used.max(0)
         else:
             lo, hi = (np.asarray(b, dtype=float).reshape(3) for b in bounds)
-        R = camera_rotation(*view)
+        R = camera_rotation(*view, up=up)
         corners = _box_corners(lo, hi) @ R.T
         c_min, c_max = corners.min(0), corners.max(0)
         centre = (c_min + c_max) / 2.0

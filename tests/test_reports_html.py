@@ -21,7 +21,7 @@ import trimesh
 from PIL import Image
 
 import reports
-from reports.render import (BACKGROUND, ERROR_STOPS, distances_to_mesh, error_colors, render_mesh,
+from reports.render import (BACKGROUND, ERROR_STOPS, camera_rotation, distances_to_mesh, error_colors, render_mesh,
                             render_mesh_and_error)
 from tests.test_reports_tables import CONTEXT, make_results
 
@@ -65,6 +65,28 @@ def test_render_is_two_sided_and_deterministic():
     flipped = render_mesh(V, F[:, ::-1])  # every face reversed (unoriented output): same picture
     assert np.array_equal(png_array(a), png_array(flipped))
     assert a == render_mesh(V, F)
+
+
+def test_the_up_axis_points_up_in_the_image():
+    for up, axis in (("x", 0), ("y", 1), ("z", 2)):
+        R = camera_rotation(-35.0, 25.0, up)
+        np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+        assert np.linalg.det(R) == pytest.approx(1.0)
+        np.testing.assert_allclose((R @ np.eye(3)[axis])[1], np.cos(np.radians(25.0)), atol=1e-12)  # image up
+    np.testing.assert_array_equal(camera_rotation(-35.0, 25.0, "y"), camera_rotation(-35.0, 25.0))
+    # a post 0.2 x 0.2 x 2 along z, seen level (elevation 0): standing with up='z', end-on (a square)
+    # with the default y up, whose camera then looks along -z
+    box = trimesh.creation.box(extents=(0.2, 0.2, 2.0))
+    V, F = np.asarray(box.vertices, float), np.asarray(box.faces, np.int64)
+    extents = {}
+    for up in ("z", "y"):
+        covered = ~np.all(png_array(render_mesh(V, F, size=(96, 96), view=(0.0, 0.0), up=up))
+                          == np.round(BACKGROUND * 255), axis=2)
+        extents[up] = np.ptp(np.flatnonzero(covered.any(1))), np.ptp(np.flatnonzero(covered.any(0)))  # rows, cols
+    assert extents["z"][0] > 5 * extents["z"][1]
+    assert abs(extents["y"][0] - extents["y"][1]) <= 2
+    with pytest.raises(ValueError, match="up axis"):
+        camera_rotation(0.0, 0.0, "w")
 
 
 def test_render_empty_and_degenerate_meshes_are_blank():
