@@ -49,6 +49,9 @@ class Dataset:
     name: str = ""
     #: Whether the shapes are point clouds (only the reconstruct task can use them).
     point_clouds: bool = False
+    #: The axis of the canonical frame that points up in the scene ('x', 'y' or 'z'); '' when the
+    #: shapes have no stated up (CAD parts). Renderers keep it vertical in the image.
+    up_axis: str = ""
 
     def names(self) -> list[str]:
         """Shape names in dataset order; never opens a mesh file."""
@@ -116,6 +119,16 @@ def register_dataset(name: str) -> Callable:
 def available_datasets() -> list[str]:
     """Registered dataset names, in registration order."""
     return DATASETS.names()
+
+
+def up_axis_of(name: str | None) -> str:
+    """The up axis ('x', 'y', 'z') of the dataset registered as ``name``; '' when it states none, is
+    unknown, or is a factory rather than a :class:`Dataset` subclass."""
+    try:
+        factory = DATASETS.get(DEFAULT_DATASET if name is None else name)
+    except DatasetError:
+        return ""
+    return factory.up_axis if isinstance(factory, type) and issubclass(factory, Dataset) else ""
 
 
 def get_dataset(name: str | None = None, **options: Any) -> Dataset:

@@ -461,6 +461,7 @@ class RoomsDataset(Dataset):
     ``count``."""
 
     name = "rooms"
+    up_axis = "z"
 
     def __init__(self, count: int = DEFAULT_COUNT, seed: int = 0, objects_dir=None, data_dir=None, tiles: int = 1):
         if objects_dir is None or str(objects_dir) == "":

@@ -469,6 +469,7 @@ class StreetDataset(Dataset):
 
     name = "street"
     point_clouds = True
+    up_axis = "z"
 
     def __init__(self, count: int = DEFAULT_COUNT, seed: int = 0, length: int = DEFAULT_LENGTH, beams: int = 32,
                  azimuths: int = 1080, objects_dir=None, data_dir=None):

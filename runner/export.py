@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from datasets.registry import up_axis_of
 from runner.records import SWEEP_PREFIX, open_run_db
 from benchmark.schema import CSV_EXCLUDED, csv_lead
 
@@ -73,6 +74,7 @@ def report_context(record: dict[str, Any]) -> dict[str, Any]:
         "git_commit": env.get("git_commit"), "sweep": sweep_of(record),
         "budget_params": config.get("budget_params", {}), "execution": record.get("execution"),
         "method_notes": method_notes(resolved.get("methods", [])),
+        "up_axis": up_axis_of(config.get("dataset")),
     }
 
 

@@ -362,3 +362,13 @@ def test_caption_carries_the_notes_of_the_run_methods_only():
     assert caption.startswith("Protocol: dataset: builtin (3 shapes); task: reconstruct")
     assert caption.endswith(notes["udf-knn"]) and notes["occ-knn"] not in caption
     assert protocol_caption(CONTEXT).endswith(".")  # no notes: the protocol sentence alone
+
+
+def test_report_context_says_which_axis_is_up_for_scenes_only():
+    from runner.export import report_context
+
+    def up(dataset):
+        return report_context({"config": {"dataset": dataset}})["up_axis"]
+
+    assert up("rooms") == "z" and up("street") == "z"  # the generators build scenes with z up
+    assert up("abc") == "" and up(None) == "" and up("no-such-dataset") == ""  # CAD parts state none
