@@ -105,11 +105,11 @@ class RunConfig:
         "identity", 128, f"grid points per axis on [-1,1] (default 128; >= {MIN_GRID}, bounded by this machine's "
         "memory); spacing 2/(N-1) canonical units", sweep="grid", ge=MIN_GRID)
     metric_preset: str = _setting(
-        "identity", "default", "metric protocol: default (canonical frame, Chamfer-L1, F1@0.005/0.01, ECD/EF1) or "
-        "ndc (NDC's script)")
+        "identity", "default", "metric protocol: default (canonical frame, Chamfer-L1, F1@0.005/0.01, ECD/EF1), "
+        "ndc (NDC's script) or scene (metres: CD in cm, F1@2/5/10 cm; the street dataset)")
     eval_points: int | None = _setting(
         "identity", None, f"surface samples per mesh for the metrics (>= {MIN_EVAL_POINTS}; default: the preset's "
-        "n, 1,000,000 for 'default', 100,000 for 'ndc'); stated in every table caption", sweep="eval_points",
+        "n, 1,000,000 for 'default' and 'scene', 100,000 for 'ndc'); stated in every table caption", sweep="eval_points",
         kind=int, ge=MIN_EVAL_POINTS)
     method_params: Mapping[str, Mapping[str, Any]] = _setting(
         "identity", {}, "override an extractor parameter, e.g. sals.o_threshold=0.2 or sals.normals=no "
