@@ -35,6 +35,7 @@ from methods.pointcloud.training_set import training_shapes
 import methods.pointcloud.geoudf.method as geoudf
 from methods.pointcloud.geoudf.extraction import (CELL_EDGES, CORNER_PAIRS, CORNERS, crossing_pairs, cube_labels, edge_marching_cubes,
                                        edge_points, triangle_table)
+from methods.pointcloud.errors import TooFewPointsError
 from methods.pointcloud.geoudf.network import GeometryGuidedUDF, make_geoudf_network, uv_sets
 from tests.learned_checks import check_training_is_deterministic, check_weights_round_trip, sphere_cloud
 
@@ -190,6 +191,9 @@ def test_reconstruct_is_deterministic_and_refuses_an_empty_cloud():
     assert a.info["upsampled_points"] == 4 * 1000 and a.info["patches"] >= 1000 // 200
     with pytest.raises(ValueError, match="no points"):
         method.reconstruct(np.zeros((0, 3)), 24, model=net)
+    k = net.lgr.knn
+    with pytest.raises(TooFewPointsError, match=f"geoudf: {k - 1} points, fewer than LGR-Net's {k} neighbours"):
+        method.reconstruct(points[:k - 1], 24, model=net)
 
 
 def test_training_is_deterministic():

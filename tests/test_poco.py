@@ -25,6 +25,7 @@ from methods.base import get_method
 from methods.pointcloud.neighbourhoods import knn_neighbourhoods
 from methods.pointcloud.training_set import training_shapes
 import methods.pointcloud.poco.method as poco
+from methods.pointcloud.errors import TooFewPointsError
 from methods.pointcloud.poco.network import (AttentionDecoder, FKAConv, batch_structures, cloud_structure, make_poco_network,
                                   quantized_subsample)
 from tests.learned_checks import check_training_is_deterministic, check_weights_round_trip, sphere_cloud
@@ -107,6 +108,21 @@ def test_reconstruct_is_deterministic_and_refuses_an_empty_cloud():
     assert a.info["backbone_passes"] >= 2 * 1000 // 400
     with pytest.raises(ValueError, match="no points"):
         method.reconstruct(np.zeros((0, 3)), 24, model=net)
+    with pytest.raises(TooFewPointsError, match="poco: 7 points, fewer than the decoder's 8 neighbours"):
+        method.reconstruct(points[:7], 24, model=net)
+
+
+def test_a_block_window_too_sparse_for_the_decoder_gives_no_surface():
+    from methods.pointcloud.blocks import Block, window_piece
+
+    method, net = get_method("poco", views=2, refine_steps=2), _small_network()
+    block = Block(32, (0, 0, 0), (16, 16, 16))  # the lower octant of a 32^3 scene grid, in a 24-point window
+    corner = _cloud(1000).astype(np.float64)
+    corner = corner[np.all(corner < 0, axis=1)][:6]  # 6 points, all inside the window: the decoder needs 8
+    with pytest.raises(TooFewPointsError):
+        method.reconstruct(corner, 24, model=net)
+    V, F = window_piece(method, corner, block, 24, min_points=1, model=net)
+    assert V.shape == (0, 3) and F.shape == (0, 3)
 
 
 def test_training_is_deterministic():

@@ -46,6 +46,7 @@ from pykdtree.kdtree import KDTree
 from benchmark.grid import LOWER, edge_inputs, ijk_axis_to_edge_index, spacing
 from methods.base import Extraction
 from methods.extractors.edc import edge_dual_contouring
+from methods.pointcloud.errors import TooFewPointsError
 from methods.pointcloud.neighbourhoods import dilate_by_ball, nearest_distance
 
 __all__ = ["Block", "blocks", "occupied_blocks", "owned_box", "crop", "band_edges_in_block", "halo_is_enough", "HaloTooSmall",
@@ -304,7 +305,8 @@ def window_piece(method, cloud: np.ndarray, block: Block, window: int, device=No
                  sensors: np.ndarray | None = None, min_points: int = 16, **network) -> tuple[np.ndarray, np.ndarray]:
     """(vertices, faces) that ``block`` owns of ``method.reconstruct`` on its window (the points of
     ``cloud`` inside the window's box, with their ``sensors`` for a method that uses them, moved to
-    the window's frame), in the frame of ``cloud``. Nothing below ``min_points`` input points."""
+    the window's frame), in the frame of ``cloud``. Nothing below ``min_points`` input points, nor
+    where the window holds fewer points than the method's neighbourhoods (:class:`TooFewPointsError`)."""
     halo_points, box = window_of(block, window)
     rows = crop(cloud, box, 0.0)
     if len(rows) < min_points:
@@ -312,7 +314,11 @@ def window_piece(method, cloud: np.ndarray, block: Block, window: int, device=No
     origin, scale = window_frame(block, halo_points, window)
     if sensors is not None:
         network = {**network, "sensors": LOWER + (np.asarray(sensors)[rows] - origin) * scale}
-    out = method.reconstruct(LOWER + (np.asarray(cloud)[rows] - origin) * scale, window, device, seed=seed, **network)
+    try:
+        out = method.reconstruct(LOWER + (np.asarray(cloud)[rows] - origin) * scale, window, device, seed=seed,
+                                 **network)
+    except TooFewPointsError:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
     V = (np.asarray(out.vertices, dtype=np.float64) - LOWER) / scale + origin
     F = clip_to_box(V, np.asarray(out.faces, dtype=np.int64), *_owned_half_open(block))
     used, F = np.unique(F, return_inverse=True)

@@ -75,6 +75,7 @@ from methods.core.budgets import register_budget_family
 from methods.core.device import get_device, seeded_generator
 from methods.pointcloud.geoudf.extraction import CORNERS, edge_marching_cubes
 from methods.pointcloud.geoudf.network import GeoUDFNetwork, make_geoudf_network, nearest_indices
+from methods.pointcloud.errors import TooFewPointsError
 from methods.pointcloud.neighbourhoods import knn_neighbourhoods
 from methods.pointcloud.neighbourhoods import band_points, nearest_distance
 from methods.pointcloud.training_set import TrainingSet, TrainResult
@@ -459,7 +460,7 @@ class GeoUDFMethod(OwnNetworkMethod):
         model, device = self.network_on_device(model, device)
         points = self.checked_points(points)
         if len(points) < model.lgr.knn:
-            raise ValueError(f"geoudf: {len(points)} points, fewer than LGR-Net's {model.lgr.knn} neighbours")
+            raise TooFewPointsError("geoudf", len(points), model.lgr.knn, "LGR-Net")
         h = spacing(N)
         if self.params["upsample"]:
             with stage("upsample"):

@@ -48,6 +48,7 @@ from methods.base import Extraction, register_method
 from methods.core.budgets import register_budget_family
 from methods.core.device import get_device, seeded_generator
 from methods.extractors.marching_cubes import far_occupancy, marching_cubes_grid
+from methods.pointcloud.errors import TooFewPointsError
 from methods.pointcloud.neighbourhoods import band_points, knn_neighbourhoods
 from methods.pointcloud.own_network import OwnNetworkMethod
 from methods.pointcloud.poco.network import POCONetwork, batch_structures, cloud_structure, make_poco_network
@@ -319,7 +320,7 @@ class POCOMethod(OwnNetworkMethod):
         model, device = self.network_on_device(model, device)
         points = self.checked_points(points)
         if len(points) < model.decoder_k:
-            raise ValueError(f"poco: {len(points)} points, fewer than the decoder's {model.decoder_k} neighbours")
+            raise TooFewPointsError("poco", len(points), model.decoder_k, "the decoder")
         with stage("latents"):
             latents, passes = point_latents(model, points, self.params["views"], np.random.default_rng(seed), device)
 
