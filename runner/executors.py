@@ -144,6 +144,7 @@ def _process_init(threads: int, progress_queue) -> None:
     end the worker when the run's process is gone."""
     global _WORKER_QUEUE
     _WORKER_QUEUE = progress_queue
+    progress_queue.cancel_join_thread()  # progress is best effort: a worker's exit never waits to send it
     pin_threads(threads)
     exit_with_parent()
 
@@ -293,6 +294,9 @@ class ProcessExecutor:
             death = worker_death(workers.values())
             self._pool.shutdown(wait=False, cancel_futures=True)
             self._pool = None
+            # A worker that died while sending progress holds the queue's write lock for ever, and
+            # every later send would wait on it: the next pool gets a fresh queue.
+            self._queue = self._ctx.Queue()
             for i in broken:
                 if not alone:  # not known to be the culprit: refund the attempt and isolate it
                     attempts[i] -= 1

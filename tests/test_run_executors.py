@@ -149,6 +149,33 @@ def test_process_executor_dead_worker_is_retried_then_reported():
     assert got[0] == 0 and got[2] == 4 and got[3] == 9          # the others finish (retried if caught in the crash)
 
 
+def _dies_holding_the_progress_lock(spec: _Spec, progress=None):
+    if spec.die:  # the race of a worker killed while its queue thread sends progress, made certain
+        from runner import executors
+
+        executors._WORKER_QUEUE._wlock.acquire()
+        os._exit(17)
+    return _square(spec, progress)
+
+
+def test_a_worker_dead_while_sending_progress_does_not_hang_the_others_or_close():
+    import threading
+
+    ex = ProcessExecutor(workers=2, retries=0)
+    got, finished = {}, threading.Event()
+
+    def run():
+        got.update({s.i: r for s, r in ex.run(_dies_holding_the_progress_lock, [_Spec(i, die=i == 1) for i in range(6)],
+                                              on_stage=lambda *a, **k: None)})
+        ex.close()
+        finished.set()
+
+    threading.Thread(target=run, daemon=True).start()
+    assert finished.wait(120), "the run or close() hung on the dead worker's progress lock"
+    assert isinstance(got[1], WorkerLost) and "(exit status 17)" in str(got[1])
+    assert {i: got[i] for i in (0, 2, 3, 4, 5)} == {0: 0, 2: 4, 3: 9, 4: 16, 5: 25}
+
+
 def _killed(spec: _Spec, progress=None):
     if spec.die:
         os.kill(os.getpid(), signal.SIGKILL)  # what the kernel's out-of-memory killer does
