@@ -83,26 +83,45 @@ def fresh_results(db: ResultsDB, table: str, tasks: list, codes: dict[str, str],
     return {t.key for t in tasks if t.key in done} - {t.key for t in stale}
 
 
-def _schedule(plan: Plan, todo: list):
+def _schedule(plan: Plan, todo: list, trained: frozenset[str] = frozenset()):
     """Sort key of the tasks: shape by shape, each shape's floor first; a job whose network an
     earlier job already fits or trains (a sweep of extraction settings; every shape of a learned
     reconstruction method) goes after every job that fits one, so parallel workers do not wait on
     each other's fits but find the weights in the cache. The followers are ordered by when their
     network's first job comes: those of a network trained early run while a later one still trains
     (a K sweep: K = 10 and 20 reconstruct while K = 50 trains), rather than one worker waiting on
-    the last network's lock with ready jobs queued behind it."""
+    the last network's lock with ready jobs queued behind it. Jobs of a network in ``trained`` (fit
+    identities the cache already holds) wait on nothing and keep the table order, so a run stopped
+    part-way has whole shapes."""
     order = {s: i for i, s in enumerate(plan.shapes)}
     first: dict[str, int] = {}  # fit identity -> rank of the job that fits it, in table order
     rank: dict[str, tuple[int, int]] = {}
     for t in sorted(todo, key=lambda t: (order[t.shape], 0 if t.kind == "floor" else 1)):
         fit = t.fit_identity() if t.kind == "job" else None
-        if fit is None or fit not in first:
-            if fit is not None:
-                first[fit] = len(first)
+        if fit is None or fit in trained:
             rank[t.key] = (0, 0)
-        else:
+        elif fit in first:
             rank[t.key] = (1, first[fit])
+        else:
+            first[fit] = len(first)
+            rank[t.key] = (0, 0)
     return lambda t: (*rank[t.key], order[t.shape], 0 if t.kind == "floor" else 1)
+
+
+def _trained_networks(todo: list) -> frozenset[str]:
+    """Fit identities of the learned reconstruction jobs in ``todo`` whose network their cache
+    already holds (no job of theirs trains)."""
+    from methods.base import get_method
+    from runner.training import network_is_cached
+
+    found: dict[str, bool] = {}
+    for t in todo:
+        fit = t.fit_identity() if t.kind == "job" and t.task == "reconstruct" and t.cache_dir else None
+        if fit is not None and fit not in found:
+            method = get_method(t.method, **t.params)
+            found[fit] = network_is_cached(method, method.budget(t.budget, t.budget_params), t.train_dirs,
+                                           t.cache_dir)
+    return frozenset(fit for fit, cached in found.items() if cached)
 
 
 def run(plan: Plan, run_dir: RunDirectory, record: dict, executor=None) -> RunOutcome:
@@ -123,7 +142,7 @@ def run(plan: Plan, run_dir: RunDirectory, record: dict, executor=None) -> RunOu
         raise
     attempts = db.attempts()
     todo = [f for f in floors if f.key not in done_floors] + [j for j in jobs if j.key not in done_jobs]
-    todo.sort(key=_schedule(plan, todo))
+    todo.sort(key=_schedule(plan, todo, _trained_networks(todo)))
     executor = executor or make_executor(config, len(todo))
     record = {**record, "started": now_iso(), "execution": execution_record(executor)}
     run_dir.write_config(record)

@@ -136,15 +136,17 @@ class JobSpec(TaskSpec):
         or train it once. Encode: the shape's fit (jobs of a sweep that differ only in extraction
         settings share it, and methods that extract another's field: ``Method.fit_name``); reconstruct:
         the network a learned method trains across shapes (method, budget, its overrides, training
-        set: every shape's job shares it). None for an oracle job
-        and a method without a network."""
+        set: every shape's job shares it). None for an oracle job, a method without a network and
+        a reconstruction method that optimises per cloud (its jobs share nothing)."""
         if not self.uses_fitting:
             return None
-        if self.task == "reconstruct":
-            return digest({"task": self.task, "method": self.method, "budget": self.budget,
-                           "budget_params": self.budget_params, "train_dirs": list(self.train_dirs)})
         from methods.base import METHODS
 
+        if self.task == "reconstruct":
+            if not METHODS.get(self.method).learned:
+                return None
+            return digest({"task": self.task, "method": self.method, "budget": self.budget,
+                           "budget_params": self.budget_params, "train_dirs": list(self.train_dirs)})
         return digest({"dataset": self.dataset, "dataset_options": identity_options(self.dataset_options),
                        "shape": self.shape, "method": METHODS.get(self.method).fit_name, "budget": self.budget,
                        "budget_params": self.budget_params, "seed": self.seed})

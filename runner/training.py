@@ -87,6 +87,17 @@ def network_key(method, budget, train_dirs: tuple[str, ...]) -> tuple[str, tuple
     return key, shapes
 
 
+def network_path(cache_root: str | Path, method, key: str) -> Path:
+    """Where the cache under ``cache_root`` keeps ``method``'s network of cache ``key``."""
+    return Path(cache_root) / "knn_weights" / f"{method.name}_{key}.pt"
+
+
+def network_is_cached(method, budget, train_dirs: tuple[str, ...], cache_root: str | Path) -> bool:
+    """Whether the cache under ``cache_root`` holds the network ``method`` trains at ``budget`` (a
+    file is there; :func:`trained_network` still checks it when it reads it)."""
+    return network_path(cache_root, method, network_key(method, budget, train_dirs)[0]).is_file()
+
+
 def trained_network(method, budget, train_dirs: tuple[str, ...], cache_root: str | Path, device=None,
                     progress: Callable[..., None] | None = None, stats: CacheStats | None = None):
     """(model in eval mode, facts) of ``method`` at ``budget`` (its own :meth:`train_network`): from the cache, or
@@ -97,7 +108,7 @@ def trained_network(method, budget, train_dirs: tuple[str, ...], cache_root: str
 
     key, shapes = network_key(method, budget, train_dirs)
     root = Path(cache_root)
-    path = root / "knn_weights" / f"{method.name}_{key}.pt"
+    path = network_path(root, method, key)
     facts = {"network_key": key, "trained": 0, "training_shapes": len(shapes)}
     with exclusive_lock(root / "locks" / f"knn_weights_{method.name}_{key}.lock"):
         try:

@@ -211,6 +211,50 @@ def test_a_k_sweep_runs_the_jobs_of_networks_trained_early_while_the_last_one_tr
     assert len({j.fit_identity() for j in jobs}) == 2  # one network per K, whatever the shape
 
 
+def test_jobs_of_a_network_the_cache_holds_keep_the_table_order(tmp_path):
+    """A network already in the cache trains in no job: its jobs wait on nothing and run shape by
+    shape beside the others (a run stopped part-way has whole shapes); a network not in the cache
+    still defers its jobs behind its training."""
+    import trimesh
+
+    from methods.base import get_method
+    from runner.driver import _schedule, _trained_networks
+    from runner.tasks import build_tasks
+    from runner.training import network_key, network_path
+
+    (tmp_path / "train").mkdir()
+    trimesh.creation.box().export(tmp_path / "train" / "box.ply")
+    cache = tmp_path / "cache"
+    args = build_parser().parse_args(["--task", "reconstruct", "--methods", "sals-knn", "--limit", "3", "--sweep",
+                                      "budget.k=10,50", "--train-dir", str(tmp_path / "train"), "--cache-dir",
+                                      str(cache), "--out", str(tmp_path / "r")])
+    plan = resolve(configure(args, tmp_path / "r"))
+    floors, jobs = build_tasks(plan)
+    k10 = next(j for j in jobs if j.budget_params.get("k") == 10)
+    method = get_method(k10.method, **k10.params)
+    path = network_path(cache, method, network_key(method, method.budget(k10.budget, k10.budget_params),
+                                                   k10.train_dirs)[0])
+    path.parent.mkdir(parents=True)
+    path.write_bytes(b"weights")
+    trained = _trained_networks(floors + jobs)
+    assert trained == {k10.fit_identity()}
+    todo = sorted(floors + jobs, key=_schedule(plan, floors + jobs, trained))
+    order = [(t.kind, t.shape[8:11], t.budget_params.get("k") if t.kind == "job" else None) for t in todo]
+    assert order == [("floor", "000", None), ("job", "000", 10), ("job", "000", 50), ("floor", "001", None),
+                     ("job", "001", 10), ("floor", "002", None), ("job", "002", 10), ("job", "001", 50),
+                     ("job", "002", 50)]
+
+
+def test_a_per_cloud_optimisation_shares_no_fit_across_jobs(tmp_path):
+    """CAP-UDF optimises a field per input cloud: its jobs have no shared fit, so none waits on another."""
+    from runner.tasks import build_tasks
+
+    args = build_parser().parse_args(["--task", "reconstruct", "--methods", "cap-udf", "--limit", "2", "--out",
+                                      str(tmp_path / "r")])
+    floors, jobs = build_tasks(resolve(configure(args, tmp_path / "r")))
+    assert len(jobs) == 2 and all(j.uses_fitting and j.fit_identity() is None for j in jobs)
+
+
 def test_a_parameter_only_the_neural_query_reads_gives_one_ceiling_job(tmp_path):
     from runner.tasks import build_tasks
 
