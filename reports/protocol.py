@@ -86,7 +86,10 @@ def execution_text(context: dict) -> str:
 def protocol_items(context: dict) -> list[tuple[str, str]]:
     """(label, value) pairs stating the run's protocol, for captions and the HTML page: dataset,
     task, mode, budget, grid, seeds, then the metric preset's own description."""
-    items = [("dataset", f"{context['dataset']} ({len(context['shapes'])} shapes)"), ("task", str(context["task"]))]
+    shapes = f"{len(context['shapes'])} shape{'' if len(context['shapes']) == 1 else 's'}"
+    if context.get("planned_shapes") not in (None, len(context["shapes"])):
+        shapes += f" of the run's {context['planned_shapes']}: those whose every job finished"
+    items = [("dataset", f"{context['dataset']} ({shapes})"), ("task", str(context["task"]))]
     if context["task"] == "score":  # meshes made elsewhere: no mode, budget or grid of this run applies
         return items + [("seeds", ", ".join(str(s) for s in context["seeds"]))] + PRESETS[
             context["metric_preset"]].describe_items(context["eval_points"])

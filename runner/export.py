@@ -55,6 +55,19 @@ def table_frame(db, table: str, record: dict[str, Any]) -> pd.DataFrame:
     return _ordered(df, by)
 
 
+def complete_shapes(results: pd.DataFrame) -> list[str]:
+    """The shapes of ``results`` (jobs' rows) that have a row for every job any shape has (method,
+    mode, seed, sweep settings): in a run stopped part-way, the shapes whose every job finished
+    (ok or failed), in table order."""
+    if results.empty:
+        return []
+    job = ["method", "mode", "seed", *[c for c in results.columns if c.startswith(SWEEP_PREFIX)]]
+    ids = results[job].astype(str).agg("|".join, axis=1)
+    wanted = set(ids)
+    has = ids.groupby(results["shape"], sort=False).agg(set)
+    return [s for s in dict.fromkeys(results["shape"]) if has[s] >= wanted]
+
+
 def sweep_of(record: dict[str, Any]) -> dict[str, list]:
     """The run's sweep, {key: values}, keys in the order given (config.json stores keys sorted)."""
     resolved = record.get("resolved", {})
@@ -87,10 +100,14 @@ def method_notes(names) -> dict[str, str]:
 
 
 def export(run_dir: str | Path, db=None, record: dict[str, Any] | None = None,
-           out_dir: str | Path | None = None, gallery: int | None = None) -> dict[str, Any]:
+           out_dir: str | Path | None = None, gallery: int | None = None,
+           only_complete_shapes: bool = False) -> dict[str, Any]:
     """Write results.csv, floor.csv and the reports of a run directory; returns what was written.
 
     ``gallery``: shapes with thumbnails in report.html (None: the report's default).
+    ``only_complete_shapes``: every file covers only :func:`complete_shapes` (a run stopped
+    part-way: every method's mean over the same shapes); the protocol line says how many of the
+    run's shapes that is.
 
     A failure while writing the reports is reported on stderr and never loses results.csv.
     """
@@ -108,6 +125,12 @@ def export(run_dir: str | Path, db=None, record: dict[str, Any] | None = None,
     finally:
         if own:
             db.close()
+    context = report_context(record)
+    if only_complete_shapes:
+        keep = complete_shapes(results)
+        results, floor, checkpoints, components = (t[t["shape"].isin(keep)].reset_index(drop=True)
+                                                   for t in (results, floor, checkpoints, components))
+        context.update(shapes=[s for s in context["shapes"] if s in keep], planned_shapes=len(context["shapes"]))
     out_dir.mkdir(parents=True, exist_ok=True)  # after reading: a database that cannot be read writes nothing
     import reports
     from runner.job import one_line
@@ -123,7 +146,7 @@ def export(run_dir: str | Path, db=None, record: dict[str, Any] | None = None,
         written["components"] = out_dir / "components.csv"
     try:
         gallery_limit = {} if gallery is None else {"gallery_limit": gallery}
-        written["reports"] = reports.write_reports(results, floor, report_context(record), out_dir, run_dir / "meshes",
+        written["reports"] = reports.write_reports(results, floor, context, out_dir, run_dir / "meshes",
                                                    **gallery_limit, checkpoints=checkpoints if len(checkpoints) else None,
                                                    components=components if len(components) else None)
     except Exception as exc:  # noqa: BLE001 -- the results are safe in results.db / results.csv

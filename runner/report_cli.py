@@ -17,6 +17,9 @@ def build_report_parser() -> argparse.ArgumentParser:
                        description="Regenerate results.csv, tables and report.html from run directories' "
                                    "results.db; with several runs, put them side by side.")
     p.add_argument("runs", nargs="+", metavar="RUN_DIR", help="run directories (each holds results.db)")
+    p.add_argument("--complete-shapes", action="store_true",
+                   help="only the shapes whose every job has a row (a run stopped part-way: every method's "
+                        "means over the same shapes); one run only")
     p.add_argument("--out", metavar="DIR", help="where to write (default: the run directory itself; for several "
                                                 "runs: runs/compare-<timestamp>)")
     return p
@@ -41,12 +44,16 @@ def report_main(argv: Sequence[str]) -> int:
 def _report(args: argparse.Namespace) -> int:
     """The report of one run, or the comparison of several; every run is read before anything is
     written."""
+    from runner.config import ConfigError
     from runner.export import export, report_context, table_frame
     from runner.records import open_run_db
     from runner.rundir import RunDirectory
 
+    if args.complete_shapes and len(args.runs) > 1:
+        raise ConfigError("--complete-shapes reads one run (compare finished runs side by side)")
     if len(args.runs) == 1:
-        written = export(Path(args.runs[0]), out_dir=Path(args.out) if args.out else None)
+        written = export(Path(args.runs[0]), out_dir=Path(args.out) if args.out else None,
+                         only_complete_shapes=args.complete_shapes)
         print(f"wrote {written['results']}", file=sys.stderr)
         return 0
     out = Path(args.out) if args.out else Path("runs") / _dt.datetime.now().strftime("compare-%Y%m%d-%H%M%S")

@@ -372,3 +372,25 @@ def test_report_context_says_which_axis_is_up_for_scenes_only():
 
     assert up("rooms") == "z" and up("street") == "z"  # the generators build scenes with z up
     assert up("abc") == "" and up(None) == "" and up("no-such-dataset") == ""  # CAD parts state none
+
+
+def test_complete_shapes_are_those_with_every_job_of_the_run():
+    from runner.export import complete_shapes
+
+    jobs = [(m, level) for m in ("sals-knn", "poisson") for level in ("scan", "noise-1")]
+    rows = [{"shape": s, "method": m, "mode": "neural", "seed": 0, "sweep.pc_corruption": level, "status": "ok"}
+            for s in ("a", "b", "c") for m, level in jobs]
+    results = pd.DataFrame(rows)
+    results.loc[(results["shape"] == "b") & (results["method"] == "poisson"), "status"] = "failed"
+    stopped = results.drop(results.index[(results["shape"] == "c") & (results["sweep.pc_corruption"] == "noise-1")])
+    assert complete_shapes(results) == ["a", "b", "c"]
+    assert complete_shapes(stopped) == ["a", "b"]  # a failed job is finished; c lacks two of its four jobs
+    assert complete_shapes(results.iloc[:0]) == []
+
+
+def test_caption_says_when_a_report_covers_only_the_finished_shapes():
+    from reports.protocol import protocol_caption
+
+    assert "dataset: builtin (3 shapes);" in protocol_caption(dict(CONTEXT, planned_shapes=3))
+    assert ("dataset: builtin (3 shapes of the run's 22: those whose every job finished);"
+            in protocol_caption(dict(CONTEXT, planned_shapes=22)))

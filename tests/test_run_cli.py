@@ -346,6 +346,16 @@ def test_report_subcommand_regenerates_results(fakes, tmp_path):
     assert main(["report", str(out), "--out", str(again)]) == 0
     pd.testing.assert_frame_equal(read_results(out), read_results(again))
     assert main(["report", str(tmp_path / "nothing")]) == 2
+    # a run stopped before the second shape's last job: --complete-shapes reports the first shape only
+    full = read_results(out)
+    second = full["shape"].iloc[-1]
+    with sqlite3.connect(out / "results.db") as db:
+        db.execute("DELETE FROM jobs WHERE shape = ? AND method = ?", (second, full["method"].iloc[-1]))
+    assert main(["report", str(out), "--complete-shapes", "--out", str(tmp_path / "complete")]) == 0
+    complete = read_results(tmp_path / "complete")
+    assert set(complete["shape"]) == {full["shape"].iloc[0]} and len(complete) == 2
+    assert "(1 shape of the run's 2: those whose every job finished)" in (tmp_path / "complete" / "summary.md").read_text()
+    assert main(["report", str(out), str(again), "--complete-shapes"]) == 2
 
 
 def test_neural_run_fits_caches_weights_and_records_nan_loss(fakes, tmp_path):
