@@ -12,6 +12,9 @@ Tables
     Per kind a mean and a median table (a row per level and method: the headline metrics, jobs,
     failed, faces, boundary and non-manifold edges), bold within each level as in the sweep tables
     (the best and every method a paired Wilcoxon test over shapes cannot tell from it).
+Overview
+    Per headline metric one table of its mean on every input (a row per input: uniform, scan, then
+    each kind's levels; a column per method), bold as in the per-kind tables.
 Plots
     One figure per headline metric: a panel per kind, the metric's mean against the level, one line
     per method.
@@ -39,8 +42,9 @@ from reports.html import esc, notes_html, plot_html, table_html
 from reports.plots import STYLE, metric_panels, panels_svg, plot_label
 from reports.protocol import check_context, protocol_caption, report_title, sweep_spec
 from reports.style import method_colors
-from reports.sweep import PREFIX, SERIES, Sweep, build_sweep, sweep_frame
-from reports.table import md_escape, metric_header, table_markdown_section
+from reports.statistics import TIE
+from reports.sweep import POS, PREFIX, SERIES, Sweep, build_sweep, sweep_frame
+from reports.table import Cell, Table, fmt, md_escape, metric_header, metric_tex_header, table_markdown_section
 
 #: The swept setting this module reads, and the sweep key of its per-kind tables.
 KEY, LEVEL = "pc_corruption", "level"
@@ -127,6 +131,34 @@ def order_notes(sweep: Sweep) -> list[str]:
     return lines
 
 
+def overview_table(robustness: Robustness, column: str) -> Table | None:
+    """The mean of one headline metric on every input (rows: ``uniform``, ``scan``, then every
+    kind's levels by name) for every method (columns), bold and † as in the per-kind tables (the
+    same paired tests within one input). None when the run has no such metric."""
+    first = next(iter(robustness.kinds.values()))
+    metric = next((m for m in first.metrics if m.column == column), None)
+    if metric is None:
+        return None
+    series = list(first.series)
+    cells: dict[str, dict[str, Cell]] = {}
+    for kind, sweep in robustness.kinds.items():
+        stats, tests = sweep.stats[LEVEL], sweep.tests[LEVEL]["mean"]
+        index = stats.index.to_frame(index=False)
+        levels = index[POS + LEVEL].map(lambda i: sweep.spec[LEVEL][int(i)])
+        names = levels.where(levels.isin(REFERENCES), kind + "-" + levels)
+        text = stats["mean"][column].map(fmt).to_numpy() + np.where(tests.tied[column].to_numpy(dtype=bool), TIE, "")
+        for name, method, value, bold in zip(names, index[SERIES], text, tests.bold[column].to_numpy(dtype=bool)):
+            cells.setdefault(name, {})[method] = Cell(value, bool(bold))
+    header = metric_header(metric)
+    table = Table(f"robustness-overview-{column}", f"Every input: mean {header}", "", ["input", *series],
+                  ["input", *series], ["l"] + ["r"] * len(series))
+    table.tex_headers[0] = f"input ({metric_tex_header(metric)})"
+    for name, row in cells.items():
+        table.add([Cell(name), *(row.get(s, Cell("")) for s in series)])
+    table.notes.append(f"{header}: the mean over the shapes; bold per input (row) as in the per-kind tables.")
+    return table
+
+
 def robustness_frame(robustness: Robustness) -> pd.DataFrame:
     """robustness.csv: the tidy rows of :func:`reports.sweep.sweep_frame` of every kind, with the
     column ``kind`` first (key 'level', values as printed)."""
@@ -138,6 +170,9 @@ def robustness_frame(robustness: Robustness) -> pd.DataFrame:
 def robustness_markdown(robustness: Robustness, context: dict) -> str:
     """robustness.md: the protocol, then per kind its order notes and its tables."""
     parts = [f"# {md_escape(report_title(context, 'robustness'))}", "", md_escape(protocol_caption(context)), ""]
+    first = next(iter(robustness.kinds.values()))
+    for metric in first.metrics:
+        parts += table_markdown_section(overview_table(robustness, metric.column))
     for kind, sweep in robustness.kinds.items():
         parts += [f"## {kind}", ""] + [f"- {md_escape(line)}" for line in robustness.notes[kind]] + [""]
         for table in sweep.tables.values():
@@ -186,6 +221,8 @@ def robustness_html(robustness: Robustness) -> str:
     first = next(iter(robustness.kinds.values()))
     parts = [plot_html(robustness_plot, robustness, m.column, alt=f"{m.column} against corruption level")
              for m in first.metrics]
+    overview = "".join(table_html(overview_table(robustness, m.column)) for m in first.metrics)
+    parts.append(f"<details><summary>Every input and method, one table per metric</summary>{overview}</details>")
     for kind, sweep in robustness.kinds.items():
         mean = sweep.tables[f"robustness-{kind}"]
         median = sweep.tables[f"robustness-{kind}-median"]

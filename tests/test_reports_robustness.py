@@ -16,7 +16,7 @@ import pandas as pd
 import pytest
 
 import reports
-from reports.robustness import build_robustness, level_names, robustness_plot
+from reports.robustness import build_robustness, level_names, overview_table, robustness_plot
 from tests.test_reports_sweep import job, rows_of
 from tests.test_reports_tables import CONTEXT
 
@@ -50,6 +50,21 @@ def test_a_table_per_kind_with_uniform_and_scan_as_its_first_levels():
     assert "Given each input point's sensor position (a scan): poisson;" in " ".join(table.notes)
 
 
+def test_the_overview_has_a_row_per_input_and_a_column_per_method():
+    robustness = build_robustness(results(), CONTEXT_R)
+    table = overview_table(robustness, "cd")
+    assert table.headers == ["input", "poisson", "geoudf"]
+    rows = {r[0].text: [c.text.rstrip("†") for c in r[1:]] for r in table.rows}
+    assert list(rows) == LEVELS  # uniform and scan once, then each kind's levels by name
+    assert [rows[lv][0] for lv in LEVELS] == ["1.000", "2.000", "3.000", "4.000", "5.000", "2.500"]
+    assert [rows[lv][1] for lv in LEVELS] == ["1.500", "1.500", "1.000", "6.000", "7.000", "4.000"]
+    noise = robustness.kinds["noise"].tables["robustness-noise"]
+    bold = {(r[0].text, r[1].text): r[noise.headers.index("CD ×1e3 ↓")].bold for r in noise.rows}
+    assert [[c.bold for c in r[1:]] for r in table.rows[:5]] == [
+        [bold[level, "poisson"], bold[level, "geoudf"]] for level in ("uniform", "scan", "1", "2", "3")]
+    assert overview_table(robustness, "no-such-metric") is None
+
+
 def test_order_notes_say_where_the_ordering_changes_and_which_methods_degrade_monotonically():
     notes = build_robustness(results(), CONTEXT_R).notes["noise"]
     assert "Order by mean CD at 1: geoudf (1) < poisson (3)" in notes
@@ -71,4 +86,5 @@ def test_no_robustness_without_a_corruption_sweep_and_the_files_with_one(tmp_pat
     cd = frame[(frame.kind == "noise") & (frame.series == "poisson") & (frame.quantity == "cd")]
     assert np.allclose(cd["mean"], [1, 2, 3, 4, 5])
     assert "## noise" in paths["robustness.md"].read_text()
+    assert "## Every input: mean CD ×1e3 ↓" in paths["robustness.md"].read_text()
     assert "Robustness to input corruptions" in paths["report.html"].read_text()
