@@ -73,6 +73,41 @@ def test_sparse_network_equals_dense_conv3d_at_every_active_cell():
     assert len(ndc.ndc_vertex_offsets(sdf, np.zeros((0, 3), dtype=int), state)) == 0
 
 
+def _renumbered_hidden_channels(state, seed=1):
+    """The same network with its 64 hidden channels renumbered: the same function, but every
+    matrix product sums its terms in another order (what another CPU's kernels do)."""
+    perm = torch.from_numpy(np.random.default_rng(seed).permutation(64))
+    out = {}
+    for name, value in state.items():
+        if value.shape[0] == 64:
+            value = value[perm]
+        if name.endswith("weight") and value.shape[1] == 64:
+            value = value[:, perm]
+        out[name] = value
+    return out
+
+
+def test_offsets_are_the_same_bits_whatever_order_the_products_sum_in(monkeypatch):
+    """Renumbered hidden channels, other matrix shapes (row chunks of 7) and two threads change the
+    order of every sum: the float32 network's outputs change with it, the offsets do not (float64
+    inference rounded to float32), so no CPU's kernels move them."""
+    state, sdf = _random_state(), _sphere_sdf_voxels()
+    cells = ndc.active_cells(sdf < 0)
+    offsets = ndc.ndc_vertex_offsets(sdf, cells, state)
+    assert ((offsets > 0) & (offsets < 1)).mean() > 0.9  # not just the clip's bounds
+    renumbered = _renumbered_hidden_channels(state)
+    with torch.no_grad():
+        assert not np.array_equal(_dense_offsets(state, sdf), _dense_offsets(renumbered, sdf))
+    np.testing.assert_array_equal(ndc.ndc_vertex_offsets(sdf, cells, renumbered), offsets)
+    monkeypatch.setattr(ndc, "_CHUNK", 7)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        np.testing.assert_array_equal(ndc.ndc_vertex_offsets(sdf, cells, state), offsets)
+    finally:
+        torch.set_num_threads(threads)
+
+
 def test_active_cells_are_those_around_a_lone_inside_point_in_c_order():
     inside = np.zeros((5, 5, 5), dtype=bool)
     inside[2, 2, 2] = True

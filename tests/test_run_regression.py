@@ -174,3 +174,41 @@ def test_absent_data_is_its_own_exit_status_with_a_first_line_message(tmp_path, 
 
     assert main(["--data-dir", str(tmp_path / "absent")]) == EXIT_NO_DATA != 0
     assert capsys.readouterr().out.splitlines()[0].startswith(f"regression not run: {tmp_path / 'absent'} is absent")
+
+
+@pytest.mark.slow
+@requires_shared("abc")
+def test_the_oracle_tier_catches_one_ndc_weight_moved_by_a_ten_thousandth_of_a_cell(tmp_path, monkeypatch):
+    """The oracle tier's sdf-ndc job of one subset part, run as the tier runs it: with NDC's
+    published weights it equals the committed baseline; with one bias of NDC's last layer moved by
+    1e-4 (every vertex's x offset shifts by 1e-4 of a cell, 1.6e-6 units) it is caught."""
+    from methods.extractors import ndc
+    from runner.cli import main
+    from runner.regression import baseline_columns
+
+    try:
+        published = ndc.load_weights()
+    except ndc.WeightsError as exc:
+        pytest.skip(str(exc))
+    part = read_list(BASELINES / "abc_subset.txt")[0]
+    (tmp_path / "list.txt").write_text(part + "\n")
+    baseline = pd.read_csv(BASELINES / "oracle" / "results.csv")
+    baseline = baseline[(baseline["shape"] == part) & (baseline.method == "sdf-ndc")]
+    assert len(baseline) == 1
+
+    def tier_run(name, state):
+        monkeypatch.setattr(ndc, "load_weights", lambda path=None: state)
+        out = tmp_path / name
+        assert main(["--methods", "sdf-ndc", "--dataset", "abc", "--data-dir", str(SHARED_DATA / "abc"),
+                     "--list", str(tmp_path / "list.txt"), "--out", str(out), "--cache-dir", str(out / "cache"),
+                     "--quiet", "--gallery", "0", "--executor", "local", "--threads", "1",
+                     *TIERS["oracle"].run_args]) == 0
+        return compare(baseline_columns(pd.read_csv(out / "results.csv")), baseline, TIERS["oracle"])
+
+    assert tier_run("published", published).empty
+    moved = dict(published)
+    bias = moved["conv_out_float.bias"].clone()
+    bias[0] += 1e-4
+    moved["conv_out_float.bias"] = bias
+    caught = tier_run("moved", moved)
+    assert len(caught) >= 1 and set(caught.method) == {"sdf-ndc"}

@@ -98,6 +98,34 @@ def test_sparse_inference_equals_the_dense_convolution():
     assert np.array_equal(flags, (torch.sigmoid(torch.from_numpy(x)).numpy() > 0.5) & mask)
 
 
+def test_outputs_are_the_same_bits_whatever_order_the_products_sum_in():
+    """The network with its hidden channels renumbered is the same function, its matrix products
+    summing in another order: float32 outputs change, the sparse inference (float64 rounded to
+    float32) gives the same bits, so the flags and offsets do not depend on the CPU's kernels."""
+    torch.manual_seed(0)
+    network = undc.UNDCNetwork(channels=16).eval()
+    renumbered = undc.UNDCNetwork(channels=16).eval()
+    perm = torch.from_numpy(np.random.default_rng(1).permutation(16))
+    state = {}
+    for name, value in network.state_dict().items():
+        if value.shape[0] == 16:
+            value = value[perm]
+        if name.endswith("weight") and value.shape[1] == 16:
+            value = value[:, perm]
+        state[name] = value
+    renumbered.load_state_dict(state)
+    udf = np.random.default_rng(0).uniform(0.0, 3.0, size=(12, 11, 13)).astype(np.float32)
+    grid = undc.network_input(udf)
+    with torch.no_grad():
+        dense = network(torch.from_numpy(grid)[None, None])
+        assert not torch.equal(dense, renumbered(torch.from_numpy(grid)[None, None]))
+    positions = np.argwhere(np.ones(udf.shape, dtype=bool))
+    np.testing.assert_allclose(undc.sparse_forward(renumbered, grid, positions),
+                               dense[0].permute(1, 2, 3, 0).reshape(-1, 3).numpy(), rtol=1e-5, atol=1e-5)
+    np.testing.assert_array_equal(undc.sparse_forward(renumbered, grid, positions),
+                                  undc.sparse_forward(network, grid, positions))
+
+
 def test_augmented_crops_move_the_labels_with_the_grid():
     """The dual contour of a whole-grid crop, permuted and reversed, mapped back, is the original."""
     V, F = _cube()

@@ -18,6 +18,11 @@ Input as NDC feeds its network: the SDF on the grid points in voxel units (one c
 padded by 3 points on each side with +-10 (the sign of the grid's corner point [0, 0, 0]) and
 clipped to [-2, 2]. Output offsets are clipped to [0, 1] (cell units).
 
+The network runs in float64 and its outputs are rounded to float32 (:func:`inference_state`): a
+float32 matrix product sums in an order that depends on the CPU's kernels and the thread count,
+and its rounding differences reach the offsets; float64's are far below a float32 step, so every
+CPU gives the same offsets, bit for bit (docs/TESTING.md, "What reproduces").
+
 The weights are data: ``network_float.pth`` of NDC's repository (MIT), found at
 ``$SALSBENCH_NDC_WEIGHTS`` or :data:`DEFAULT_WEIGHTS`, and checked against their published SHA-256
 before use.
@@ -94,6 +99,15 @@ def _load_checked(path: str) -> dict[str, torch.Tensor]:
     return {k: v.float() for k, v in state.items()}
 
 
+#: The dtype the networks of NDC and UNDC are evaluated in (their outputs are then rounded to float32).
+INFERENCE_DTYPE = torch.float64
+
+
+def inference_state(state: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """A state dict's tensors on the CPU in :data:`INFERENCE_DTYPE`."""
+    return {k: v.detach().to("cpu", INFERENCE_DTYPE) for k, v in state.items()}
+
+
 def network_input(sdf_voxels: np.ndarray) -> np.ndarray:
     """NDC's input grid from an SDF in voxel units, shape (N, N, N): padded by
     :data:`RECEPTIVE_PADDING` with +-:data:`PADDING_VALUE` (the sign of point [0, 0, 0]) and clipped
@@ -157,9 +171,10 @@ def ndc_vertex_offsets(sdf_voxels: np.ndarray, cells: np.ndarray, state: dict | 
 
     Returns
     -------
-    (M, 3) float32 offsets in [0, 1]^3 from the cell's lower corner, clipped as NDC does.
+    (M, 3) float32 offsets in [0, 1]^3 from the cell's lower corner, clipped as NDC does; evaluated
+    in :data:`INFERENCE_DTYPE` and rounded to float32, so the same bits on every CPU.
     """
-    state = load_weights() if state is None else state
+    state = inference_state(load_weights() if state is None else state)
     grid = network_input(sdf_voxels)
     n = sdf_voxels.shape[0]
     cells = np.asarray(cells, dtype=np.int64).reshape(-1, 3)
@@ -170,7 +185,7 @@ def ndc_vertex_offsets(sdf_voxels: np.ndarray, cells: np.ndarray, state: dict | 
     at_conv0, index_conv0 = receptive_positions(at_conv1, (n + 4,) * 3)
     with torch.no_grad():
         patches = at_conv0[:, None, :] + KERNEL_OFFSETS[None]
-        x = torch.from_numpy(grid[patches[..., 0], patches[..., 1], patches[..., 2]])  # (M0, 27)
+        x = torch.from_numpy(grid[patches[..., 0], patches[..., 1], patches[..., 2]]).to(INFERENCE_DTYPE)  # (M0, 27)
         w0 = state["conv_0.weight"]
         x = leaky(torch.addmm(state["conv_0.bias"], x, w0.permute(2, 3, 4, 1, 0).reshape(27, -1)))
         x = _residual(state, "res_1", x)
@@ -181,7 +196,7 @@ def ndc_vertex_offsets(sdf_voxels: np.ndarray, cells: np.ndarray, state: dict | 
             x = _residual(state, name, x)
         x = leaky(pointwise_conv(state, "conv_3", x))
         x = leaky(pointwise_conv(state, "conv_4", x))
-        offsets = pointwise_conv(state, "conv_out_float", x)
+        offsets = pointwise_conv(state, "conv_out_float", x).to(torch.float32)
     return np.clip(offsets.numpy(), 0.0, 1.0)
 
 

@@ -44,7 +44,8 @@ from benchmark.storage import CorruptEntry, read_checked, write_checked
 from benchmark.timing import stage
 from methods.base import Extraction
 from methods.core.weights import WeightsError, load_plain
-from methods.extractors.ndc import KERNEL_OFFSETS, leaky, pointwise_conv, receptive_positions, sparse_conv3
+from methods.extractors.ndc import (KERNEL_OFFSETS, inference_state, leaky, pointwise_conv, receptive_positions,
+                                    sparse_conv3)
 
 #: Grid points of padding each side: the receptive field of the three unpadded 3x3x3 convolutions.
 RECEPTIVE_PADDING = 3
@@ -127,26 +128,27 @@ def sparse_forward(network: UNDCNetwork, grid: np.ndarray, positions: np.ndarray
     -------
     (M, 3) float32 raw outputs, the values of the dense pass ``network(grid)[0, :, p]`` (to float
     rounding): each 3x3x3 layer is evaluated only where a later layer reads it (5^3 and 7^3
-    neighbourhoods of ``positions``), as :func:`methods.extractors.ndc.ndc_vertex_offsets` does.
+    neighbourhoods of ``positions``), in :data:`~methods.extractors.ndc.INFERENCE_DTYPE` and rounded
+    to float32, as :func:`methods.extractors.ndc.ndc_vertex_offsets` does: the same bits on every CPU.
     """
     positions = np.asarray(positions, dtype=np.int64).reshape(-1, 3)
     if len(positions) == 0:
         return np.zeros((0, 3), dtype=np.float32)
-    state = {k: v.detach().to("cpu", torch.float32) for k, v in network.state_dict().items()}
+    state = inference_state(network.state_dict())
     shape = np.array(grid.shape, dtype=np.int64) - 2 * RECEPTIVE_PADDING
     at_conv1, index_conv1 = receptive_positions(positions, tuple(int(s) for s in shape + 2))
     at_conv0, index_conv0 = receptive_positions(at_conv1, tuple(int(s) for s in shape + 4))
     with torch.no_grad():
         patches = at_conv0[:, None, :] + KERNEL_OFFSETS[None]
         x = torch.from_numpy(np.ascontiguousarray(grid[patches[..., 0], patches[..., 1], patches[..., 2]],
-                                                  dtype=np.float32))  # (M0, 27)
+                                                  dtype=np.float64))  # (M0, 27)
         w0 = state["conv_0.weight"]
         x = leaky(torch.addmm(state["conv_0.bias"], x, w0.permute(2, 3, 4, 1, 0).reshape(27, -1)))
         x = sparse_conv3(state, "conv_1", x, index_conv0, at_conv1)
         x = sparse_conv3(state, "conv_2", x, index_conv1, positions)
         x = leaky(pointwise_conv(state, "conv_3", x))
         x = leaky(pointwise_conv(state, "conv_4", x))
-        out = pointwise_conv(state, "conv_out", x)
+        out = pointwise_conv(state, "conv_out", x).to(torch.float32)
     return out.numpy()
 
 
