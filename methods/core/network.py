@@ -37,7 +37,7 @@ from typing import Callable, NamedTuple, Sequence
 import torch
 from torch import nn
 
-from methods.core import grid_lookup
+from methods.core import grid_lookup, head_gradient
 
 #: Clamp of the exponent argument |beta x| (see module docstring).
 EXP_CLAMP = 30.0
@@ -485,42 +485,60 @@ def value_and_input_gradients(model: nn.Module, x: torch.Tensor, output_indices:
 
     A :class:`GridNetwork` on the CPU in float32 takes the grid's derivative from
     :func:`methods.core.grid_lookup.lookup_with_jacobian` (the features and their Jacobian in one pass,
-    linear in the grid values) and autograd's only through the head, by the chain rule: for each
+    linear in the grid values) and differentiates only the head, by the chain rule: for each
     point p of the input, ``d f / dp = (d f / d enc(p)) (d enc(p) / dp) + d f / d[raw p]`` (a
     segment's offset ``(v - u) / SEGMENT_SCALE`` adds its block to v's and subtracts it from u's),
     without the second-order autograd graph of the grid lookup; the one lookup serves every output.
-    Any other network is differentiated by autograd. The two agree to float32 rounding.
+    A Softplus :class:`MLP` (the head, or the whole network) is differentiated by
+    :mod:`methods.core.head_gradient`, whose backward is written out; any other network by
+    autograd. All agree to float32 rounding.
     """
-    last = len(output_indices) - 1
     if isinstance(model, GridNetwork):
         levels = list(model.encoder.levels)
         points = x.reshape(-1, 3)
         if grid_lookup.applies(levels, points):
             features, jacobian = grid_lookup.lookup_with_jacobian(levels, points)
-            head_in = model.head_input(features, x)
-            if not head_in.requires_grad:
-                head_in.requires_grad_(True)
-            out = model.head(head_in)
             if not create_graph:
                 jacobian = jacobian.detach()
+            out, head_grads = _mlp_value_and_input_gradients(model.head, model.head_input(features, x),
+                                                             output_indices, create_graph)
             n, k = features.shape[1], model.k
             grads = []
-            for j, index in enumerate(output_indices):
-                (d_in,) = torch.autograd.grad(out[:, index].sum(), head_in, create_graph=create_graph,
-                                              retain_graph=create_graph or j < last)
+            for d_in in head_grads:
                 d_points = d_in[:, :k * (n + 3)].reshape(-1, n + 3)  # (B k, L C + 3): per point, its code and p
-                grad = (torch.bmm(d_points[:, None, :n], jacobian)[:, 0] + d_points[:, n:]).reshape(x.shape)
+                grad = (grid_lookup.jacobian_transpose_product(jacobian, d_points[:, :n]) + d_points[:, n:]).reshape(x.shape)
                 if k == 2:
                     d_offset = d_in[:, k * (n + 3):] / SEGMENT_SCALE
                     grad = grad + torch.cat([-d_offset, d_offset], dim=1)
                 grads.append(grad)
             return out, grads
-    x = x.detach().requires_grad_(True)
+    return _mlp_value_and_input_gradients(model, x.detach(), output_indices, create_graph)
+
+
+def _mlp_value_and_input_gradients(model: nn.Module, x: torch.Tensor, output_indices: Sequence[int],
+                                   create_graph: bool) -> tuple[torch.Tensor, list[torch.Tensor]]:
+    """``model(x)`` and the gradients of some outputs in ``x``: for a Softplus :class:`MLP`,
+    :func:`methods.core.head_gradient.value_and_input_gradients` (the second-order backward written
+    out); otherwise autograd (``create_graph`` for a loss on the gradients)."""
+    if _softplus_mlp(model):
+        linear = [m for m in model.layers if isinstance(m, nn.Linear)]
+        out, grads = head_gradient.value_and_input_gradients([m.weight for m in linear], [m.bias for m in linear],
+                                                             model.config["beta"], x, output_indices)
+        return out, grads if create_graph else [g.detach() for g in grads]
+    if not x.requires_grad:
+        x = x.detach().requires_grad_(True)
     out = model(x)
+    last = len(output_indices) - 1
     grads = [torch.autograd.grad(out[:, index].sum(), x, create_graph=create_graph,
                                  retain_graph=create_graph or j < last)[0]
              for j, index in enumerate(output_indices)]
     return out, grads
+
+
+def _softplus_mlp(model: nn.Module) -> bool:
+    """An :class:`MLP` whose activations are Softplus with torch's threshold (torch's or the clamped kernel)."""
+    return isinstance(model, MLP) and model.config["activation"] in ("softplus", "softplus-clamped") \
+        and THRESHOLD == head_gradient.SOFTPLUS_THRESHOLD
 
 
 def make_network(in_dim: int, out_dim: int, depth: int = 9, width: int = 512, beta: float = 100.0,
