@@ -348,3 +348,26 @@ def test_the_scene_preset_scores_in_metres():
     assert r["gt_diagonal"] == pytest.approx(np.sqrt(2))
     with pytest.raises(ValueError, match="scores in metres: the shape states no metres per unit"):
         M.evaluate(V, F, V, F, preset="scene", n_points=1000)
+
+
+def test_the_gt_samples_reused_for_a_second_prediction_give_the_numbers_it_gets_alone():
+    """Every method of a shape is scored against the same GT samples, which a process computes
+    once: a prediction scored after another equals, to the bit, its scores in a fresh process."""
+    import importlib
+
+    evaluate_module = importlib.import_module("benchmark.metrics.evaluate")
+    gt = trimesh.creation.box(extents=(1.0, 0.6, 0.4))
+    first = trimesh.creation.box(extents=(1.02, 0.6, 0.4))
+    second = trimesh.creation.icosphere(subdivisions=3, radius=0.5)
+    evaluate_module._GT_MEMO.clear()
+    M.evaluate(gt.vertices, gt.faces, first.vertices, first.faces, n_points=20000, seed=3)
+    assert len(evaluate_module._GT_MEMO) == 1
+    after_first = M.evaluate(gt.vertices, gt.faces, second.vertices, second.faces, n_points=20000, seed=3)
+    evaluate_module._GT_MEMO.clear()
+    alone = M.evaluate(gt.vertices, gt.faces, second.vertices, second.faces, n_points=20000, seed=3)
+    after_first.pop("seconds"), alone.pop("seconds")
+    assert after_first.keys() == alone.keys()
+    for key, value in alone.items():
+        assert after_first[key] == value or (value != value and after_first[key] != after_first[key]), key
+    other_seed = M.evaluate(gt.vertices, gt.faces, second.vertices, second.faces, n_points=20000, seed=4)
+    assert other_seed["cd"] != alone["cd"] and len(evaluate_module._GT_MEMO) == 2

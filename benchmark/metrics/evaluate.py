@@ -3,7 +3,10 @@ the protocol's noise floor (the GT against an independent resample of itself).""
 
 from __future__ import annotations
 
+import hashlib
 import time
+from collections import OrderedDict
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -73,6 +76,54 @@ def _check_gt(vertices: np.ndarray, faces: np.ndarray) -> None:
     if not area >= MIN_RELATIVE_AREA:
         raise ValueError(f"GT mesh is degenerate: total area {area:.3g} x its largest bounding-box side squared "
                          f"(below {MIN_RELATIVE_AREA:g}: its faces lie on a line or a point)")
+
+
+@dataclass(frozen=True)
+class _GTSamples:
+    """What :func:`evaluate` computes from the GT alone: its samples (spatially ordered) with their
+    normals, their sharp-edge mask (None when the search was refused, with ``edge_search_error``)
+    and whether the GT mesh is watertight."""
+
+    points: np.ndarray
+    normals: np.ndarray
+    edges: np.ndarray | None
+    edge_search_error: str
+    watertight: bool
+
+
+#: The GT sides of the last few evaluations in this process: every method of a shape and seed is
+#: scored against the same GT samples, so the second and later jobs of a shape reuse them.
+_GT_MEMO: OrderedDict[str, _GTSamples] = OrderedDict()
+_GT_MEMO_SIZE = 2
+
+
+def _gt_samples(vertices: np.ndarray, faces: np.ndarray, n: int, stream: np.random.Generator, seed_record,
+                radius: float, dot_threshold: float) -> _GTSamples:
+    """The GT side of :func:`evaluate` (``stream``: the GT's sampling generator of ``seed_record``),
+    from the memo when this process has computed it for the same mesh, sample count, seed and edge
+    test: the same arrays either way (the sampling is a function of the seed)."""
+    h = hashlib.sha256(np.ascontiguousarray(vertices).tobytes())
+    h.update(np.ascontiguousarray(faces).tobytes())
+    h.update(repr((n, str(seed_record), float(radius), float(dot_threshold))).encode())
+    key = h.hexdigest()
+    if key in _GT_MEMO:
+        _GT_MEMO.move_to_end(key)
+        return _GT_MEMO[key]
+    points, normals = sample_surface(vertices, faces, n, stream)
+    order = spatial_order(points)
+    points, normals = points[order], normals[order]
+    try:
+        edges, error = sharp_edge_points(points, normals, radius, dot_threshold), ""
+    except EdgeSearchTooDense as exc:
+        edges, error = None, str(exc)
+    for array in (points, normals, edges):
+        if array is not None:
+            array.setflags(write=False)
+    gt = _GTSamples(points, normals, edges, error, bool(mesh_validity(vertices, faces)["watertight"]))
+    _GT_MEMO[key] = gt
+    while len(_GT_MEMO) > _GT_MEMO_SIZE:
+        _GT_MEMO.popitem(last=False)
+    return gt
 
 
 def evaluate(
@@ -186,15 +237,13 @@ def evaluate(
         empty = not relative_area(pred_vertices, usable) >= MIN_RELATIVE_AREA
 
     with timer.stage("sample"):
-        gt_points, gt_normals = sample_surface(gt_vertices, gt_faces, n, gt_stream)
+        gt = _gt_samples(gt_vertices, gt_faces, n, gt_stream, seed_record, radius, preset.edge_dot_threshold)
+        gt_points, gt_normals = gt.points, gt.normals
         if empty:
             pred_points = pred_normals = np.zeros((0, 3))
         else:
             pred_points, pred_normals = sample_surface(pred_vertices, usable, n, pred_stream)
-        # spatial order: same point sets, much faster KD-tree queries
-        order = spatial_order(gt_points)
-        gt_points, gt_normals = gt_points[order], gt_normals[order]
-        order = spatial_order(pred_points)
+        order = spatial_order(pred_points)  # same point set, much faster KD-tree queries
         pred_points, pred_normals = pred_points[order], pred_normals[order]
 
     result = {"preset": preset.name, "n_points": n, "seed": seed_record}
@@ -209,11 +258,7 @@ def evaluate(
             result.update(surface_metrics(gt_points, gt_normals, pred_points, pred_normals, preset))
 
     with timer.stage("edge_points"):
-        skipped = ""
-        try:
-            gt_edge = sharp_edge_points(gt_points, gt_normals, radius, preset.edge_dot_threshold)
-        except EdgeSearchTooDense as exc:
-            gt_edge, skipped = None, f"GT {exc}"
+        gt_edge, skipped = gt.edges, "" if gt.edges is not None else f"GT {gt.edge_search_error}"
         try:
             pred_edge = sharp_edge_points(pred_points, pred_normals, radius, preset.edge_dot_threshold)
         except EdgeSearchTooDense as exc:
@@ -229,8 +274,7 @@ def evaluate(
     result.update(edges)
 
     with timer.stage("iou"):
-        closed = (not empty and validity["watertight"] and len(usable) == len(pred_faces)
-                  and mesh_validity(gt_vertices, gt_faces)["watertight"])
+        closed = not empty and validity["watertight"] and len(usable) == len(pred_faces) and gt.watertight
         iou = (volumetric_iou(gt_vertices, gt_faces, pred_vertices, usable, iou_stream, min(IOU_POINTS, n))
                if closed else nan)
     with timer.stage("self_intersections"):
