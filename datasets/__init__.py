@@ -5,7 +5,8 @@
         shape = ds.load(name)            # may raise MeshError for this one shape only
 
 Registered datasets: ``builtin`` (default: 4 generated CAD-like shapes), ``abc``,
-``abc-nonmanifold``, ``meshes`` (any folder of mesh files), ``pointclouds`` (point-cloud files
+``abc-nonmanifold``, ``sals-abc50`` and ``sals-nonmanifold50`` (the SALS paper's two ABC test
+sets, SHA-256 checked), ``meshes`` (any folder of mesh files), ``pointclouds`` (point-cloud files
 with their GT meshes, for the reconstruct task), ``rooms`` (Synthetic-Rooms-style scenes
 generated from a seed: floor, walls and CAD parts as one triangle soup) and ``street`` (a street
 scanned by a rotating multi-beam LiDAR along its centreline; the GT is what the sensor could see).

@@ -1,10 +1,13 @@
-"""Directory datasets: any folder of meshes, ABC meshes filtered by a list, and non-manifold ABC
-pairs.
+"""Directory datasets: any folder of meshes, ABC meshes filtered by a list, non-manifold ABC
+pairs, and the SALS paper's two ABC test sets as named, checked datasets (``sals-abc50``,
+``sals-nonmanifold50``: committed lists and SHA-256 manifest, default folder
+``../shared/data/abc-ppsurf``).
 
 Folders are scanned recursively by default (``recursive=True``; the raw ABC layout keeps each model
 in its own sub-folder), skipping hidden files and folders; files are sorted by their path relative
-to ``data_dir``. Only the file names are read when a dataset is built: meshes are opened by
-``load(name)``, which raises :class:`~datasets.io.MeshError` for that shape alone.
+to ``data_dir``. Only the file names are read when a dataset is built (and, with a ``manifest``,
+the bytes of the matched files, to check their SHA-256): meshes are opened by ``load(name)``,
+which raises :class:`~datasets.io.MeshError` for that shape alone.
 
 ABC list matching (``match_list_entry``): an entry ``<id>_<hash>_trimesh_<NNN>`` (the ABC stem)
 matches, in this order of preference,
@@ -30,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from datasets.io import MESH_EXTENSIONS, MeshError, Shape, classify_topology, load_shape, normalize_shape
+from datasets.manifest import check_file, read_manifest
 from datasets.registry import (
     Dataset,
     DatasetError,
@@ -40,6 +44,7 @@ from datasets.registry import (
     existing_dir,
     register_dataset,
     select_subset,
+    shared_data_dir,
 )
 
 #: Preference among files sharing a stem.
@@ -171,13 +176,19 @@ class ABCDataset(_FolderDataset):
     ABC stem per line, matched as in the module docstring, shapes named and ordered as the list).
     Entries with no file are listed in ``.missing`` and reported by one MissingShapesWarning line;
     ``strict=True`` raises DatasetError instead. Without a list: every mesh file, named by stem,
-    sorted. ``limit``/``seed`` then pick a subset (first ``limit``, or a seeded random subset)."""
+    sorted. ``manifest`` (a SHA-256 manifest, :mod:`datasets.manifest`, paths relative to
+    ``data_dir``): every matched file is checked against it when the dataset is built; a shape whose
+    file is altered or not pinned is left out (in ``.missing``) with one MissingShapesWarning line
+    naming the file (DatasetError with ``strict=True``). ``limit``/``seed`` then pick a subset
+    (first ``limit``, or a seeded random subset) of the shapes that remain."""
 
     name = "abc"
 
-    def __init__(self, data_dir=None, list_file=None, limit=None, seed=None, strict=False, recursive=True, kind=None):
+    def __init__(self, data_dir=None, list_file=None, limit=None, seed=None, strict=False, recursive=True, kind=None,
+                 manifest=None):
         super().__init__(data_dir, recursive, limit, seed, kind)
         self.list_file = None if list_file in (None, "") else Path(list_file).expanduser()
+        self.manifest = None if manifest in (None, "") else Path(manifest).expanduser()
         self.strict = as_bool(strict, "strict")
         self.by_stem = index_by_stem(self.files, self.data_dir)
         if self.list_file is None:
@@ -188,6 +199,7 @@ class ABCDataset(_FolderDataset):
             paths = {e: p for e, p in matched.items() if p is not None}
             self.missing = [e for e, p in matched.items() if p is None]
             _report_missing(self, len(entries))
+        paths = {n: files[0] for n, files in _keep_pinned(self, {n: (p,) for n, p in paths.items()}).items()}
         if not paths:
             what = f"matching {self.list_file}" if self.list_file else f"({' '.join(MESH_EXTENSIONS)})"
             raise DatasetError(f"dataset '{self.name}': no mesh files {what} in {self.data_dir}")
@@ -196,7 +208,7 @@ class ABCDataset(_FolderDataset):
 
     def options(self) -> dict[str, Any]:
         return {**super().options(), "list_file": None if self.list_file is None else str(self.list_file),
-                "strict": self.strict}
+                "strict": self.strict, "manifest": None if self.manifest is None else str(self.manifest)}
 
     def describe(self) -> dict[str, Any]:
         return {**super().describe(), "missing": list(self.missing),
@@ -209,13 +221,16 @@ class ABCNonManifoldDataset(ABCDataset):
     soup of both normalised parts (:func:`compose_soup`), named ``A+B``, kind 'nonmanifold'. Lines
     whose parts lack a file are in ``.missing`` (warning, or DatasetError with ``strict=True``).
     Without a list, the sorted stems of ``data_dir`` are paired consecutively (1st+2nd, 3rd+4th,
-    ...; an odd last one is left out)."""
+    ...; an odd last one is left out). ``manifest``: as for ``abc``; a pair with an altered or
+    unpinned part is left out (one warning line per such file, naming the pairs it leaves out)."""
 
     name = "abc-nonmanifold"
 
-    def __init__(self, data_dir=None, list_file=None, limit=None, seed=None, strict=False, recursive=True):
+    def __init__(self, data_dir=None, list_file=None, limit=None, seed=None, strict=False, recursive=True,
+                 manifest=None):
         _FolderDataset.__init__(self, data_dir, recursive, limit, seed, "nonmanifold")
         self.list_file = None if list_file in (None, "") else Path(list_file).expanduser()
+        self.manifest = None if manifest in (None, "") else Path(manifest).expanduser()
         self.strict = as_bool(strict, "strict")
         self.by_stem = index_by_stem(self.files, self.data_dir)
         if self.list_file is None:
@@ -235,6 +250,7 @@ class ABCNonManifoldDataset(ABCDataset):
                 else:
                     pairs[f"{a}+{b}"] = (path_a, path_b)
             _report_missing(self, len(lines))
+        pairs = _keep_pinned(self, pairs)
         if not pairs:
             what = f" matching {self.list_file}" if self.list_file else ""
             raise DatasetError(f"dataset '{self.name}': no complete pair of meshes{what} in {self.data_dir}")
@@ -255,6 +271,55 @@ class ABCNonManifoldDataset(ABCDataset):
     def describe(self) -> dict[str, Any]:
         return {**Dataset.describe(self), "missing": list(self.missing),
                 "files": {n: [p.relative_to(self.data_dir).as_posix() for p in pair] for n, pair in self._pairs.items()}}
+
+
+#: The committed lists and manifest of the SALS paper's ABC test sets (docs/ABC-UNSEEN.md, "The
+#: SALS paper's test sets"): the 50 parts, the 50 pairs of the same parts, the SHA-256 of the parts.
+LISTS_DIR = Path(__file__).resolve().parents[1] / "lists"
+SALS_ABC_LIST = LISTS_DIR / "sals-abc50.txt"
+SALS_NONMANIFOLD_LIST = LISTS_DIR / "sals-nonmanifold50.txt"
+SALS_ABC_MANIFEST = LISTS_DIR / "sals-abc50.sha256"
+#: Where the paper's parts live by default: ``abc-ppsurf`` in the shared data folder.
+PPSURF_SUBDIR = "abc-ppsurf"
+
+
+def default_ppsurf_dir() -> Path:
+    """``abc-ppsurf`` in :func:`~datasets.registry.shared_data_dir` (the 104 raw ABC parts of
+    cg-tuwien/ppsurf_modeling: every part of the SALS paper's lists)."""
+    return shared_data_dir() / PPSURF_SUBDIR
+
+
+@register_dataset("sals-abc50")
+class SALSABCDataset(ABCDataset):
+    """The SALS paper's ABC test set: the 50 parts of ``lists/sals-abc50.txt`` (rsy6318/SALS,
+    ``data/abc_list.txt``), in its order, each file checked against ``lists/sals-abc50.sha256``.
+    A missing or altered file is one MissingShapesWarning line naming it, and the other parts run
+    (``strict=True``: DatasetError instead). ``data_dir``: default ``../shared/data/abc-ppsurf``
+    (:func:`default_ppsurf_dir`); any folder holding the same files (found recursively by stem).
+    ``limit``/``seed``: as for ``abc``."""
+
+    name = "sals-abc50"
+
+    def __init__(self, data_dir=None, limit=None, seed=None, strict=False):
+        super().__init__(default_ppsurf_dir() if data_dir in (None, "") else data_dir, list_file=SALS_ABC_LIST,
+                         limit=limit, seed=seed, strict=strict, manifest=SALS_ABC_MANIFEST)
+
+
+@register_dataset("sals-nonmanifold50")
+class SALSNonManifoldDataset(ABCNonManifoldDataset):
+    """The SALS paper's non-manifold ABC test set: the 50 ``A+B`` pairs of
+    ``lists/sals-nonmanifold50.txt`` (rsy6318/SALS, ``data/non_manifold_abc_list.txt``; 41 of the
+    50 parts of ``sals-abc50``), each pair the soup of its two parts (``abc-nonmanifold``), every part
+    checked against ``lists/sals-abc50.sha256``. A missing or altered part is one warning line
+    naming it and the pairs it leaves out; the other pairs run. ``data_dir``, ``limit``, ``seed``,
+    ``strict``: as for ``sals-abc50``."""
+
+    name = "sals-nonmanifold50"
+
+    def __init__(self, data_dir=None, limit=None, seed=None, strict=False):
+        super().__init__(default_ppsurf_dir() if data_dir in (None, "") else data_dir,
+                         list_file=SALS_NONMANIFOLD_LIST, limit=limit, seed=seed, strict=strict,
+                         manifest=SALS_ABC_MANIFEST)
 
 
 def compose_soup(name: str, parts: list[Shape], kind: str = "nonmanifold") -> Shape:
@@ -279,9 +344,41 @@ def _report_missing(dataset: ABCDataset, total: int) -> None:
     if not dataset.missing:
         return
     shown = ", ".join(dataset.missing[:2]) + (", ..." if len(dataset.missing) > 2 else "")
-    what = "name a mesh" if dataset.name == "abc" else "name a pair of meshes"
+    what = "name a pair of meshes" if isinstance(dataset, ABCNonManifoldDataset) else "name a mesh"
     message = (f"dataset '{dataset.name}': {len(dataset.missing)} of {total} lines of {dataset.list_file} do not "
                f"{what} found in {dataset.data_dir} ({shown}); see .missing")
     if dataset.strict:
         raise DatasetError(message)
     warnings.warn(message, MissingShapesWarning, stacklevel=4)
+
+
+def _keep_pinned(dataset: ABCDataset, shapes: dict[str, tuple[Path, ...]]) -> dict[str, tuple[Path, ...]]:
+    """``shapes`` (name -> its files) without those whose files fail ``dataset.manifest`` (all of
+    them when it is None). Each failing file is one MissingShapesWarning line (DatasetError with
+    ``strict``) naming it and the shapes it leaves out; those shapes go to ``dataset.missing``.
+    Each file is read once, however many shapes use it."""
+    if dataset.manifest is None:
+        return shapes
+    pins = read_manifest(dataset.manifest)
+    problems: dict[Path, str | None] = {}
+    left_out: dict[Path, list[str]] = {}
+    kept = {}
+    for name, files in shapes.items():
+        for path in files:
+            if path not in problems:
+                pinned = pins.get(path.relative_to(dataset.data_dir).as_posix())
+                problems[path] = check_file(path, pinned, dataset.manifest.name)
+        bad = [path for path in files if problems[path]]
+        for path in bad:
+            left_out.setdefault(path, []).append(name)
+        if bad:
+            dataset.missing.append(name)
+        else:
+            kept[name] = files
+    for path, names in left_out.items():
+        shown = ", ".join(names[:2]) + (", ..." if len(names) > 2 else "")
+        message = f"dataset '{dataset.name}': {problems[path]}; left out: {len(names)} shape(s) ({shown})"
+        if dataset.strict:
+            raise DatasetError(message)
+        warnings.warn(message, MissingShapesWarning, stacklevel=4)
+    return kept

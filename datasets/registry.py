@@ -16,6 +16,7 @@ Datasets declare themselves with :func:`register_dataset` and are built with :fu
 from __future__ import annotations
 
 import inspect
+import os
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -27,6 +28,15 @@ from datasets.io import MeshError, Shape
 
 #: The dataset a run uses when none is named.
 DEFAULT_DATASET = "builtin"
+
+#: The environment variable that moves the shared data folder (tests/conftest.py reads it too).
+SHARED_DATA_ENV = "SALSBENCH_SHARED_DATA"
+
+
+def shared_data_dir() -> Path:
+    """The shared data folder: ``$SALSBENCH_SHARED_DATA`` when set, else ``../shared/data`` beside
+    the checkout. Read at each call (not cached), so the variable may change during a session."""
+    return Path(os.environ.get(SHARED_DATA_ENV) or Path(__file__).resolve().parents[2] / "shared" / "data")
 
 
 class DatasetError(ValueError):

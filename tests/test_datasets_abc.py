@@ -212,10 +212,12 @@ def test_meshes_folder(tmp_path):
 
 
 def test_registry_errors(tmp_path):
-    assert sorted(available_datasets()) == ["abc", "abc-nonmanifold", "builtin", "meshes", "pointclouds", "rooms", "street"]
+    assert sorted(available_datasets()) == ["abc", "abc-nonmanifold", "builtin", "meshes", "pointclouds", "rooms",
+                                            "sals-abc50", "sals-nonmanifold50", "street"]
     with pytest.raises(ValueError) as info:
         get_dataset("shapenet")
-    assert str(info.value) == "unknown dataset 'shapenet'; known datasets: builtin, meshes, abc, abc-nonmanifold, pointclouds, rooms, street"
+    assert str(info.value) == ("unknown dataset 'shapenet'; known datasets: builtin, meshes, abc, abc-nonmanifold, "
+                               "sals-abc50, sals-nonmanifold50, pointclouds, rooms, street")
     with pytest.raises(DatasetError, match="has no option 'lst_file'"):
         get_dataset("abc", data_dir=tmp_path, lst_file="x")
     with pytest.raises(DatasetNotFoundError) as info:
