@@ -1,25 +1,26 @@
-"""Copy the ABC parts of ``lists/abc-unseen.txt`` out of a local ppsurf_modeling clone and check them.
+"""Check the ABC parts of ``lists/abc-unseen.txt`` against their pins, or copy them out of a ppsurf_modeling clone.
 
-    .venv/bin/python scripts/fetch_abc_unseen.py --repo ../ppsurf_modeling            # -> ../shared/data/abc-unseen
+    .venv/bin/python scripts/fetch_abc_unseen.py --check                          # verify ../shared/data/abc-ppsurf
+    .venv/bin/python scripts/fetch_abc_unseen.py --check DIR                      # verify another copy
+    .venv/bin/python scripts/fetch_abc_unseen.py --repo ../ppsurf_modeling        # copy -> ../shared/data/abc-ppsurf
     .venv/bin/python scripts/fetch_abc_unseen.py --repo ../ppsurf_modeling --out DIR
-    .venv/bin/python scripts/fetch_abc_unseen.py --check ../shared/data/abc-unseen      # verify only
 
 The meshes are not in this repository: they come from github.com/cg-tuwien/ppsurf_modeling (MIT) at
-the pinned commit ``COMMIT``; when ``--repo`` does not exist the script prints the ``git clone`` and
-``git checkout`` commands that make it. The default ``--out`` is ``abc-unseen`` in ../shared/data
-beside the checkout (``$SALSBENCH_SHARED_DATA`` when set, as in tests/conftest.py).
-``lists/abc-unseen.csv`` (committed) pins every file: its source path in that repository and its
-SHA-256. Each problem (entry missing from the manifest, source or copy missing, SHA-256 differs) is
-reported on one line; the exit status is 1 if there was any, 2 on usage errors (missing clone), 0
-otherwise. docs/ABC-UNSEEN.md states the selection rule.
+the pinned commit ``COMMIT``, and ``abc-ppsurf`` in ../shared/data beside the checkout
+(``$SALSBENCH_SHARED_DATA`` when set, as in tests/conftest.py) holds all 104 files of its
+``datasets/abc_modeling/00_base_meshes/``, byte for byte: the default source, where ``--check``
+looks and ``--repo`` copies to. When ``--repo`` does not exist the script prints the ``git clone``
+and ``git checkout`` commands that make it. ``lists/abc-unseen.csv`` (committed) pins every file:
+its source path in that repository and its SHA-256. Each problem (entry missing from the manifest,
+source or copy missing, SHA-256 differs) is reported on one line (:func:`datasets.manifest.check_file`);
+the exit status is 1 if there was any, 2 on usage errors (missing clone), 0 otherwise.
+docs/ABC-UNSEEN.md states the selection rule.
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
-import hashlib
-import os
 import shutil
 import sys
 from pathlib import Path
@@ -27,17 +28,13 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from datasets.abc import read_list_file  # noqa: E402
+from datasets.abc import default_ppsurf_dir, read_list_file  # noqa: E402
+from datasets.manifest import check_file as check_pinned  # noqa: E402
 
 LIST = REPO / "lists" / "abc-unseen.txt"
 MANIFEST = REPO / "lists" / "abc-unseen.csv"
-DEFAULT_OUT = Path(os.environ.get("SALSBENCH_SHARED_DATA", REPO.parent / "shared" / "data")) / "abc-unseen"
 SOURCE_URL = "https://github.com/cg-tuwien/ppsurf_modeling"
 COMMIT = "3dd947344aca3b1d206207c4cd3e5faaa9ae6b54"
-
-
-def sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def manifest_rows(list_file: Path = LIST, manifest: Path = MANIFEST) -> tuple[list[dict], list[str]]:
@@ -53,12 +50,7 @@ def manifest_rows(list_file: Path = LIST, manifest: Path = MANIFEST) -> tuple[li
 
 def check_file(path: Path, row: dict) -> str | None:
     """One problem line for ``path`` against its manifest row, or None when it matches."""
-    if not path.is_file():
-        return f"{path}: missing"
-    actual = sha256(path)
-    if actual != row["sha256"]:
-        return f"{path}: SHA-256 {actual[:12]}... differs from the pinned {row['sha256'][:12]}..."
-    return None
+    return check_pinned(path, row["sha256"], MANIFEST.name)
 
 
 def fetch(repo: Path, out: Path, rows: list[dict]) -> list[str]:
@@ -81,9 +73,12 @@ def fetch(repo: Path, out: Path, rows: list[dict]) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--repo", type=Path, help=f"local clone of {SOURCE_URL} at {COMMIT[:12]}")
-    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="folder to copy into (default: %(default)s)")
-    parser.add_argument("--check", type=Path, metavar="DIR", help="only verify the files in DIR, copy nothing")
+    parser.add_argument("--out", type=Path, default=None,
+                        help=f"folder to copy into (default: {default_ppsurf_dir()})")
+    parser.add_argument("--check", type=Path, metavar="DIR", nargs="?", const=default_ppsurf_dir(),
+                        help=f"only verify the files in DIR (default: {default_ppsurf_dir()}), copy nothing")
     args = parser.parse_args(argv)
+    args.out = default_ppsurf_dir() if args.out is None else args.out
     if (args.repo is None) == (args.check is None):
         parser.error("give either --repo PATH (fetch) or --check DIR (verify)")
 

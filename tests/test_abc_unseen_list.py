@@ -1,6 +1,7 @@
 """lists/abc-unseen.txt (ABC parts outside NDC's training range), its manifest lists/abc-unseen.csv and
-scripts/fetch_abc_unseen.py. The meshes live outside the repository (../shared/data/abc-unseen); the
-checks that need them skip, with a reason, when that folder is absent."""
+scripts/fetch_abc_unseen.py. The meshes live outside the repository, in ../shared/data/abc-ppsurf (all
+104 parts of the source, the 93 of the list among them); the checks that need them skip, with a reason,
+when that folder is absent."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from datasets.abc import read_list_file
 from tests.conftest import REPO, SHARED_DATA
 
 LIST = REPO / "lists" / "abc-unseen.txt"
-UNSEEN_DIR = SHARED_DATA / "abc-unseen"
+UNSEEN_DIR = SHARED_DATA / "abc-ppsurf"
 OUR_ABC_DIR = SHARED_DATA / "abc"
 NDC_TRAINING_IDS = range(2, 7903 + 1)  # ABC objects 00000002-00007903 (docs/PROTOCOL.md, sdf-ndc)
 MIN_ENTRIES = 30
@@ -75,7 +76,7 @@ def test_manifest_agrees_with_list():
 def test_check_reports_each_problem_on_one_line(tmp_path, capsys):
     assert fetch_script.main(["--check", str(tmp_path)]) == 1
     err = capsys.readouterr().err.splitlines()
-    assert len(err) == len(ROWS) and all(line.endswith(": missing") for line in err)
+    assert len(err) == len(ROWS) and all(line.endswith(": missing (pinned by abc-unseen.csv)") for line in err)
 
 
 def test_fetch_copies_and_verifies(tmp_path):
@@ -100,8 +101,11 @@ def test_missing_clone_prints_the_commands(tmp_path, capsys):
 
 @pytest.mark.skipif(not UNSEEN_DIR.is_dir(), reason=f"{UNSEEN_DIR} is absent: make it with "
                     "scripts/fetch_abc_unseen.py --repo <ppsurf_modeling clone>")
-def test_shared_copies_match_their_sha256():
+def test_shared_copies_match_their_sha256(capsys, monkeypatch):
     assert [p for row in ROWS if (p := fetch_script.check_file(UNSEEN_DIR / row["file"], row))] == []
+    monkeypatch.setenv("SALSBENCH_SHARED_DATA", str(SHARED_DATA))
+    assert fetch_script.main(["--check"]) == 0  # the shared folder is the default source
+    assert capsys.readouterr().out.strip() == f"{len(ROWS)} files ok in {UNSEEN_DIR}"
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a list entry without its file would warn
         dataset = get_dataset("abc", data_dir=UNSEEN_DIR, list_file=LIST, strict=True)
