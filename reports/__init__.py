@@ -20,7 +20,9 @@ Modules: ``table`` (table model, Markdown/LaTeX writers), ``frames`` (input chec
 statistics and their table), ``significance`` (bootstrap intervals, paired tests, the tie rule),
 ``summary`` (the run's tables, summary.md/.tex), ``sweep`` (a sweep run's tables and plots),
 ``robustness`` (a sweep of input corruptions: a table per kind, a plot per metric),
-``timing``, ``compare`` (several runs), ``plots``, ``render`` (thumbnails), ``html`` (report.html).
+``timing``, ``compare`` (several runs), ``plots``, ``render`` (thumbnails), ``html`` (report.html),
+``viewer`` (its 3D viewer; ``viewer_data`` its geometry, ``glb`` its mesh files, ``viewer_assets`` the
+vendored JavaScript in ``reports/vendor/``).
 """
 
 from __future__ import annotations
@@ -45,7 +47,7 @@ __all__ = ["write_reports", "compare_runs", "render_mesh"]
 def write_reports(results: pd.DataFrame, floor: pd.DataFrame | None, context: dict, out_dir: Path,
                   meshes_dir: Path | None = None, *, gallery_limit: int = GALLERY_LIMIT,
                   checkpoints: pd.DataFrame | None = None,
-                  components: pd.DataFrame | None = None) -> dict[str, Path]:
+                  components: pd.DataFrame | None = None, max_bytes: int | None = None) -> dict[str, Path]:
     """Write the run's tables and report into ``out_dir``; returns {file name: path}.
 
     Tables first (cheap), then report.html, which renders thumbnails from
@@ -55,7 +57,8 @@ def write_reports(results: pd.DataFrame, floor: pd.DataFrame | None, context: di
     (:mod:`reports.sweep`) come first; the ordinary tables get only the jobs of the run's mode
     (a neural sweep's oracle ceiling jobs are left out of them). ``components`` (one row per
     decomposition variant of a job: method, shape, seed, exact, metrics) adds the decomposition
-    tables (:mod:`reports.decomposition`) to summary.md and the report.
+    tables (:mod:`reports.decomposition`) to summary.md and the report. ``max_bytes``: report.html's
+    size budget (default 30 MB or $SALSBENCH_REPORT_MAX_MB; :func:`reports.viewer.size_budget`).
     """
     out_dir = Path(out_dir)
     context, results = check_context(context), check_results(results)
@@ -71,7 +74,8 @@ def write_reports(results: pd.DataFrame, floor: pd.DataFrame | None, context: di
                                       Path(meshes_dir) if meshes_dir is not None else None,
                                       gallery_limit=gallery_limit, checkpoints=checkpoints,
                                       sweep_html=sweep_html(sweep) if sweep is not None else "",
-                                      robustness_html=robustness_html(robustness) if robustness is not None else "")
+                                      robustness_html=robustness_html(robustness) if robustness is not None else "",
+                                      max_bytes=max_bytes)
     return paths
 
 

@@ -1,9 +1,11 @@
-"""report.html: one self-contained page (inline CSS, images as base64 data URIs, no script, no network).
+"""report.html: one self-contained page (inline CSS, images as base64 data URIs, inline scripts, no
+file or network reference), within a size budget (:func:`reports.viewer.size_budget`).
 
 Sections: a sweep run's sweep first (:mod:`reports.sweep`), summary (the best mean per metric with
 the methods tied with it, the mean table with its intervals, counts and what each mean is over), a
 gallery (per shape: GT and every method rendered headless with :mod:`reports.render`, plus each
-method coloured by its distance to the GT surface, with the colour scale), per-shape plots
+method coloured by its distance to the GT surface, with the colour scale; for Markdown and print),
+the 3D viewer (:mod:`reports.viewer`: the same meshes in linked WebGL views, the page's only script), per-shape plots
 (:mod:`reports.plots`) and tables, validity, timing, failed jobs with their error text, and the
 protocol with the run context. Every text from the run is escaped with :func:`html.escape`; the
 stylesheet is ``report.css`` beside this module.
@@ -29,6 +31,7 @@ from reports.statistics import tests_against_best
 from reports.summary import Summary
 from reports.table import Table, fmt, metric_header
 from reports.timing import timing_caption, timing_table
+from reports.viewer import size_budget, viewer_html
 
 CSS = Path(__file__).with_name("report.css").read_text(encoding="utf-8")
 #: Clip of the error colouring, canonical frame units (= the default protocol's F1@0.01 threshold).
@@ -126,6 +129,15 @@ def _metrics_text(summary: Summary, shape: str, method: str) -> str:
     if len(sel) and {"boundary_edges", "nonmanifold_edges"} <= set(sel.columns):
         parts.append(topology_text(numeric(sel, "boundary_edges").mean(), numeric(sel, "nonmanifold_edges").mean()))
     return " · ".join(p for p in parts if p)
+
+
+def _view_caption(summary: Summary, shape: str, method: str) -> str:
+    """A viewer cell's caption: the metrics of :func:`_metrics_text`, or what failed."""
+    jobs = summary.results[(summary.results["shape"] == shape) & (summary.results["method"] == method)]
+    if len(jobs) and not len(ok_jobs(jobs)):
+        err = jobs["error"].dropna()
+        return f"{len(jobs)} job(s) failed: " + (one_line(err.iloc[0]) if len(err) else "no error text")
+    return _metrics_text(summary, shape, method)
 
 
 def _gt_caption(vertices: np.ndarray, faces: np.ndarray) -> str:
@@ -301,10 +313,12 @@ def _page(title: str, subtitle: str, chips: list[tuple[str, str]], sections: lis
 
 def write_html(path: Path, summary: Summary, timing: pd.DataFrame, context: dict, meshes_dir: Path | None = None,
                *, gallery_limit: int = GALLERY_LIMIT, thumb_size: int = 256,
-               checkpoints: pd.DataFrame | None = None, sweep_html: str = "", robustness_html: str = "") -> Path:
+               checkpoints: pd.DataFrame | None = None, sweep_html: str = "", robustness_html: str = "",
+               max_bytes: int | None = None) -> Path:
     """Write report.html for one run (see the module docstring); returns ``path``. ``robustness_html``
     (:func:`reports.robustness.robustness_html`) and ``sweep_html`` (:func:`reports.sweep.sweep_html`),
-    when given, are the first sections."""
+    when given, are the first sections. ``max_bytes``: the page's size budget
+    (:func:`reports.viewer.size_budget`), which the 3D viewer's meshes are fitted into."""
     results = summary.results
     colors = method_colors(summary.methods)
     n_jobs, n_failed = len(results), int((results["status"] != "ok").sum())
@@ -331,6 +345,7 @@ def write_html(path: Path, summary: Summary, timing: pd.DataFrame, context: dict
         *([("sweep", "Sweep", sweep_html)] if sweep_html else []),
         ("summary", "Summary", summary_html),
         ("gallery", "Gallery", gallery),
+        ("viewer", "3D viewer", ""),
         ("per-shape", "Per shape", per_shape + shape_tables),
         ("validity", "Mesh validity", table_html(t["validity"])
          + (f'<h4>{esc(t["unscored"].title)}</h4>' + table_html(t["unscored"], "compact") + notes_html(t["unscored"])
@@ -346,8 +361,14 @@ def write_html(path: Path, summary: Summary, timing: pd.DataFrame, context: dict
     chips = [(k, v) for k, v in protocol_items(context) if k in CHIPS] + [("jobs", f"{n_jobs} ({n_failed} failed)")]
     commit = f"commit {str(context['git_commit'])[:10]}" if context["git_commit"] else ""
     subtitle = " · ".join(x for x in (", ".join(summary.methods), device_text(context), commit) if x)
+    title = report_title(context, "report")
+    page_bytes = len(_page(title, subtitle, chips, sections).encode("utf-8"))
+    viewer = viewer_html(summary.shapes, summary.methods, meshes_dir, lambda s, m: _view_caption(summary, s, m),
+                         colors, preset=context["metric_preset"], up=context.get("up_axis") or "", vmax=ERROR_VMAX,
+                         page_budget=size_budget(max_bytes), page_bytes=page_bytes, limit=gallery_limit)
+    sections = [(sid, name, viewer if sid == "viewer" else content) for sid, name, content in sections]
     path = Path(path)
-    path.write_text(_page(report_title(context, "report"), subtitle, chips, sections), encoding="utf-8")
+    path.write_text(_page(title, subtitle, chips, sections), encoding="utf-8")
     return path
 
 

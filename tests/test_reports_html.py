@@ -23,12 +23,9 @@ from PIL import Image
 import reports
 from reports.render import (BACKGROUND, ERROR_STOPS, camera_rotation, distances_to_mesh, error_colors, render_mesh,
                             render_mesh_and_error)
+from tests.browser import CHROMIUM, FLAGS, needs_chromium
 from tests.test_reports_tables import CONTEXT, make_results
 
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-needs_chromium = pytest.mark.skipif(
-    CHROMIUM is None, reason="chromium is not installed (apt-get install chromium): the browser check of report.html is skipped"
-)
 
 
 def png_array(png: bytes) -> np.ndarray:
@@ -208,12 +205,15 @@ def test_write_reports_contract_and_static_self_containment(report):
     page = paths["report.html"].read_text()
     parsed = _Collect()
     parsed.feed(page)
-    assert "script" not in parsed.tags and "link" not in parsed.tags  # no JS, no external CSS
+    assert "link" not in parsed.tags  # no external CSS
+    assert parsed.tags.count("script") == 4  # the 3D viewer's data, Draco decoder, three.js and viewer.js, inline
     assert parsed.img_src and all(s.startswith("data:image/") for s in parsed.img_src)
     # 3 GT + 5 predictions x (shaded + error-coloured) thumbnails + 2 plots
     assert sum(s.startswith("data:image/png") for s in parsed.img_src) == 3 + 2 * 5
     assert sum(s.startswith("data:image/svg+xml") for s in parsed.img_src) == 2
     assert all(link.startswith("#") for link in parsed.links)  # only in-page anchors
+    assert paths["report.html"].stat().st_size <= 30_000_000  # the default size budget
+    assert "Every mesh is drawn in full" in page and "three.js 0.187.0 (MIT)" in page  # the viewer's library, licence
     assert "MeshError: NaN loss at step 120" in page  # the failed jobs' error text
     assert re.search(r"clipped at\s+0\.01", page)  # error colour scale stated
     # the mean with its interval, sdf bold as a tie (3 shapes: no difference can be significant), said
@@ -230,8 +230,12 @@ def test_missing_meshes_dir_and_unreadable_mesh(tmp_path):
     write_fake_meshes(meshes)
     (meshes / "cube" / "sals.ply").write_text("not a mesh")
     (meshes / "sphere" / "gt.ply").unlink()
-    page = reports.write_reports(results, floor, CONTEXT, tmp_path / "b", meshes, gallery_limit=2)["report.html"].read_text()
+    page = reports.write_reports(results, floor, CONTEXT, tmp_path / "b", meshes, gallery_limit=2,
+                                 max_bytes=1_000_000)["report.html"]
+    assert page.stat().st_size <= 1_000_000
+    page = page.read_text()
     assert "render failed" in page and "no GT mesh" in page and "Showing the first 2 of 3 shapes" in page
+    assert "No 3D viewer: the page's size budget (1 MB" in page
     page = reports.write_reports(results, floor, CONTEXT, tmp_path / "c", meshes, gallery_limit=0)["report.html"].read_text()
     assert "image/png" not in page and "No thumbnails in this report (gallery limit 0)" in page  # plots stay
 
@@ -246,9 +250,7 @@ def test_compare_runs_writes_every_file(tmp_path):
 
 
 def _chromium(args: list[str], profile: Path) -> subprocess.CompletedProcess:
-    cmd = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-           "--disable-background-networking", "--disable-component-update", "--disable-sync",
-           "--disable-dev-shm-usage", f"--user-data-dir={profile}", *args]
+    cmd = [CHROMIUM, *FLAGS, f"--user-data-dir={profile}", *args]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=90)
 
 
@@ -359,3 +361,4 @@ def test_gallery_captions_count_boundary_and_non_manifold_edges():
     fin = np.vstack([F, [[F[0, 0], F[0, 1], len(V)]]])
     assert _gt_caption(np.vstack([V, [[2.0, 2.0, 2.0]]]), fin).endswith("NM 1")
     assert topology_text(float("nan"), 0) == ""
+
