@@ -39,7 +39,7 @@ ERROR_VMAX = 0.01
 GALLERY_LIMIT = 24
 #: Meshes with more faces are drawn from a seeded random subset of this many faces (thumbnails only).
 MAX_RENDER_FACES = 300_000
-CHIPS = ("dataset", "mode", "budget", "grid", "seeds", "metric preset")
+CHIPS = ("dataset", "task", "mode", "budget", "grid", "seed", "seeds", "metric preset")
 
 
 def esc(text) -> str:
@@ -360,7 +360,8 @@ def write_html(path: Path, summary: Summary, timing: pd.DataFrame, context: dict
     ]
     chips = [(k, v) for k, v in protocol_items(context) if k in CHIPS] + [("jobs", f"{n_jobs} ({n_failed} failed)")]
     commit = f"commit {str(context['git_commit'])[:10]}" if context["git_commit"] else ""
-    subtitle = " · ".join(x for x in (", ".join(summary.methods), device_text(context), commit) if x)
+    facts = (", ".join(summary.methods), device_text(context), execution_text(context), commit)
+    subtitle = " · ".join(x for x in facts if x)
     title = report_title(context, "report")
     page_bytes = len(_page(title, subtitle, chips, sections).encode("utf-8"))
     viewer = viewer_html(summary.shapes, summary.methods, meshes_dir, lambda s, m: _view_caption(summary, s, m),

@@ -4,16 +4,18 @@ The run layer passes ``context``, a flat dict with the keys of :data:`CONTEXT_KE
 
 ========== =====================================================================
 dataset     dataset name (str)
-task        'encode'
-mode        'neural' or 'oracle'
-budget      budget name (str), None in oracle mode; budget_values {budget family: its values} or None
+task        'encode', 'reconstruct' or 'score'
+mode        'neural' or 'oracle' (stated for the encode task only)
+budget      budget name (str), None in oracle mode; budget_values {budget family: its values}, or None
+            when no method of the run fits or trains under a budget (then no budget is stated)
 grid        N, the extraction grid has N³ points on [-1, 1]³
-seeds       list of int
+seeds       list of int (stated as 'seed 0' or 'seeds 0, 1, 2')
 methods     method names in display order; shapes: shape names in dataset order
 metric_preset  a key of ``benchmark.metrics.PRESETS``
 eval_points the effective number of metric samples per mesh (int)
 device      e.g. 'cpu (<CPU model>)'; cpu_model, gpu: str or None
 git_commit  str or None
+execution   {'executor', 'workers', 'threads_per_job'} or None: how the jobs ran (:func:`execution_text`)
 sweep       optional: {key: [values in the user's order]} of a sweep run (:mod:`reports.sweep`);
             empty or missing when the run is not a sweep
 method_notes optional: {method: sentence} every caption carries (what a row is, where its name
@@ -25,6 +27,8 @@ itself: ``PRESETS[name].headline_metrics()`` and ``PRESETS[name].describe_items(
 """
 
 from __future__ import annotations
+
+import re
 
 from benchmark.metrics import PRESETS
 
@@ -63,10 +67,20 @@ def sweep_spec(context: dict) -> dict[str, list]:
 
 
 def device_text(context: dict) -> str:
-    """The device, with the GPU and CPU model when the device text does not already name them."""
+    """The device, with the GPU and CPU model when the device text does not already name them. The
+    torch threads a CPU device text names ('cpu (2 threads)') are the driver process's: where the
+    execution record states the jobs' own (:func:`execution_text`), they are left out."""
     text = str(context["device"] or "device not recorded")
+    if (context.get("execution") or {}).get("threads_per_job"):
+        text = re.sub(r"\s*\(\d+ threads?\)$", "", text)
     extra = [str(context[k]) for k in ("gpu", "cpu_model") if context[k] and str(context[k]) not in text]
     return text + (f" ({'; '.join(extra)})" if extra else "")
+
+
+def seeds_item(seeds) -> tuple[str, str]:
+    """('seed', '0') for one seed, ('seeds', '0, 1, 2') for several: the values, never a count."""
+    seeds = list(seeds)
+    return ("seed" if len(seeds) == 1 else "seeds"), ", ".join(str(s) for s in seeds)
 
 
 def execution_text(context: dict) -> str:
@@ -85,16 +99,18 @@ def execution_text(context: dict) -> str:
 
 def protocol_items(context: dict) -> list[tuple[str, str]]:
     """(label, value) pairs stating the run's protocol, for captions and the HTML page: dataset,
-    task, mode, budget, grid, seeds, then the metric preset's own description."""
+    task, mode (the encode task's only: neural fit or oracle field), budget (where a method of the
+    run fits or trains under one), grid, seed(s), then the metric preset's own description."""
     shapes = f"{len(context['shapes'])} shape{'' if len(context['shapes']) == 1 else 's'}"
     if context.get("planned_shapes") not in (None, len(context["shapes"])):
         shapes += f" of the run's {context['planned_shapes']}: those whose every job finished"
     items = [("dataset", f"{context['dataset']} ({shapes})"), ("task", str(context["task"]))]
     if context["task"] == "score":  # meshes made elsewhere: no mode, budget or grid of this run applies
-        return items + [("seeds", ", ".join(str(s) for s in context["seeds"]))] + PRESETS[
-            context["metric_preset"]].describe_items(context["eval_points"])
-    items.append(("mode", str(context["mode"])))
-    if context["budget"] is not None:
+        return items + [seeds_item(context["seeds"])] + PRESETS[context["metric_preset"]].describe_items(
+            context["eval_points"])
+    if context["task"] == "encode":  # the reconstruct task has no oracle: its mode says nothing
+        items.append(("mode", str(context["mode"])))
+    if context["budget"] is not None and (context["budget_values"] or context["task"] == "encode"):
         families = context["budget_values"] or {}
         if not all(isinstance(v, dict) for v in families.values()):  # flat values, not keyed by family
             families = {"": families}
@@ -102,7 +118,7 @@ def protocol_items(context: dict) -> list[tuple[str, str]]:
                               for family, values in families.items())
         items.append(("budget", str(context["budget"]) + (f" ({described})" if described else "")))
     grid = int(context["grid"])
-    items += [("grid", f"{grid}³ points on [-1, 1]³"), ("seeds", ", ".join(str(s) for s in context["seeds"]))]
+    items += [("grid", f"{grid}³ points on [-1, 1]³"), seeds_item(context["seeds"])]
     if sweep_spec(context):
         items.append(("sweep", " × ".join(f"{k} ({', '.join(map(str, v))})" for k, v in sweep_spec(context).items())))
     return items + PRESETS[context["metric_preset"]].describe_items(context["eval_points"])

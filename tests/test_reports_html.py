@@ -362,3 +362,15 @@ def test_gallery_captions_count_boundary_and_non_manifold_edges():
     assert _gt_caption(np.vstack([V, [[2.0, 2.0, 2.0]]]), fin).endswith("NM 1")
     assert topology_text(float("nan"), 0) == ""
 
+
+def test_the_header_of_a_reconstruct_run_states_its_task_seed_and_workers_not_a_mode(tmp_path):
+    """A reconstruct run by 2 process workers x 1 torch thread, one seed, no method under a budget."""
+    context = dict(CONTEXT, task="reconstruct", seeds=[0], budget_values=None, device="cpu (2 threads)")
+    page = reports.write_reports(*make_results(), context, tmp_path)["report.html"].read_text()
+    header = page[page.index("<header>"):page.index("</header>")]
+    chips = dict(re.findall(r'<span class="chip"><b>([^<]*)</b>([^<]*)</span>', header))
+    assert chips["task"] == "reconstruct" and chips["seed"] == "0"
+    assert "mode" not in chips and "seeds" not in chips and "budget" not in chips
+    subtitle = re.search(r'<div class="sub">([^<]*)</div>', header).group(1)
+    assert "cpu (Test CPU 3000) · executor process, 2 workers x 1 torch thread" in subtitle
+    assert "2 threads" not in subtitle  # the driver's own threads are not the jobs'
