@@ -49,6 +49,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from benchmark.scanner import Scan, scan_cloud, sphere_sensors
+from benchmark.seeding import job_streams
 from benchmark.surface import sample_surface
 
 __all__ = ["Corruption", "CORRUPTIONS", "KINDS", "LEVELS", "Cloud", "parse_corruption", "input_cloud",
@@ -376,3 +377,22 @@ def input_cloud(vertices: np.ndarray, faces: np.ndarray, n: int, corruption: str
             points[rows] = points[rows] @ R.T + params.translation * side * shifts[s]
     return Cloud(points, sensors, ids, outliers, c.name, sensor_layout=layout, dropped_sensors=dropped,
                  direction=direction)
+
+
+def input_point_cloud(shape, n: int, noise: float, seed: int,
+                      corruption: str | Corruption = "uniform") -> tuple[np.ndarray, np.ndarray | None]:
+    """(points (P, 3), sensors (P, 3) or None): the reconstruct task's input cloud of a job. The
+    shape's own cloud and sensors (a dataset of point-cloud files), else ``n`` points of the GT
+    surface made as ``corruption`` names (:func:`input_cloud`), on the job's sampler stream
+    (:func:`benchmark.seeding.job_streams` of the shape's content hash and ``seed``: the same cloud
+    for every method of a (shape, seed, corruption)); plus Gaussian noise of sigma ``noise``
+    (canonical units) from the same stream; no normals."""
+    rng = job_streams(shape.content_hash, seed).sampler_rng()
+    if shape.points is not None:
+        points, sensors = np.asarray(shape.points, dtype=np.float64), shape.sensors
+    else:
+        cloud = input_cloud(shape.vertices, shape.faces, n, corruption, rng)
+        points, sensors = cloud.points, cloud.sensors
+    if noise > 0:
+        points = points + rng.normal(scale=noise, size=points.shape)
+    return np.asarray(points, dtype=np.float64), sensors

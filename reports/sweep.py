@@ -425,7 +425,7 @@ def cost_plot(sweep: Sweep, key: str) -> bytes | None:
     """One panel per headline metric against the mean seconds of the fits that ran (log x): a line
     per series through the key's values (:func:`cost_seconds`: a method extracting another's fits
     at that method's seconds), its 95% bootstrap band of the mean over shapes shaded, each point
-    labelled with its value. For a budget key (``budget.iterations``, ...), where the
+    labelled with its value. For a budget key (``budget.steps``, ...), where the
     x axis of :func:`sweep_plot` is the setting and this one its cost. SVG bytes; None when no
     series has fit seconds at two values or more."""
     stats = sweep.stats[key]

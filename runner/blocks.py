@@ -16,7 +16,7 @@ A reconstruct job with ``pc_blocks > 0`` (``--pc-blocks B``) is run in three ste
    arrives (atomically): a run killed between blocks keeps them, and the next run computes only
    the missing ones. A block whose crop missed points its edges need comes back with the halo it
    needs and is run again with it.
-3. **Merge** (the job itself, :func:`runner.block_store.merged_extraction`): the blocks' edges through one E-DC, or
+3. **Merge** (the job itself, :func:`tasks.block_store.merged_extraction`): the blocks' edges through one E-DC, or
    their pieces concatenated, then scored like any job. The job's timings get ``blocks_s`` (the
    blocks' seconds, summed) and its info the number of blocks, the slowest block's seconds and the
    largest peak resident memory of a block task (``block_peak_rss_mib``).
@@ -37,9 +37,10 @@ import numpy as np
 
 from benchmark.storage import atomic_write
 from methods.pointcloud.blocks import HaloTooSmall, blocks, owned_box, window_of
-from runner.block_store import (CLOUD_FILE, BlockResult, BlockTask, Scene, blocks_folder, by_edges, read_scene,
+from tasks.block_store import (CLOUD_FILE, BlockResult, BlockTask, Scene, blocks_folder, by_edges, read_scene,
                                 write_block, write_scene)
-from runner.tasks import JobSpec, load_dataset
+from tasks.load import load_dataset
+from tasks.spec import JobSpec
 
 #: Rows of the cloud a block task reads at a time while cropping.
 CROP_CHUNK = 1 << 20
@@ -68,8 +69,8 @@ def scene_of(job: JobSpec, points: np.ndarray) -> Scene:
 def prepare_cloud(job: JobSpec, folder: Path) -> None:
     """Write the job's input cloud (and sensors) to ``folder/cloud.npz`` and its scene grid
     (:func:`scene_of`) to ``folder/scene.json``, unless they are there."""
-    from runner.block_store import SCENE_FILE
-    from runner.job import input_point_cloud
+    from tasks.block_store import SCENE_FILE
+    from benchmark.corruptions import input_point_cloud
 
     path = folder / CLOUD_FILE
     if path.is_file() and (folder / SCENE_FILE).is_file():
@@ -140,7 +141,7 @@ def run_block_task(task: BlockTask, progress=None) -> BlockResult:
             method = get_method(job.method, **job.params)
             network = {}
             if job.budget is not None and method.learned:
-                from runner.training import trained_network
+                from tasks.trained_networks import trained_network
 
                 stage = "network"
                 network["model"], _ = trained_network(method, method.budget(job.budget, job.budget_params),

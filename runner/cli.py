@@ -182,7 +182,7 @@ def _overrides(args: argparse.Namespace, plugins: Sequence[str]) -> dict[str, An
     if "method_params" in given:
         given["method_params"] = parse_method_params(given["method_params"], given.get("plugins", plugins))
     if "budget_params" in given:
-        given["budget_params"] = _key_values(given["budget_params"], "--budget-param", "NAME=VALUE (e.g. iterations=2000)")
+        given["budget_params"] = _key_values(given["budget_params"], "--budget-param", "NAME=VALUE (e.g. steps=2000)")
     if "dataset_params" in given:
         given["dataset_params"] = _key_values(given["dataset_params"], "--dataset-option", "NAME=VALUE (e.g. length=100)")
     if "sweep" in given:
@@ -333,7 +333,8 @@ def score_main(argv: Sequence[str]) -> int:
     """``run_benchmark.py score --pred-dir DIR --name NAME [--pred-frame original|canonical] [--dataset ...
     --out ...]``: score a folder of meshes made elsewhere as the method NAME of a run of ``--task
     score`` (:mod:`runner.external`); every other setting as for a run."""
-    from runner.external import FRAMES, register_external
+    from runner.external import register_external
+    from tasks.score import FRAMES
 
     argv = list(argv)
     pred_dir, name, frame = _take(argv, "--pred-dir"), _take(argv, "--name"), _take(argv, "--pred-frame", "original")
@@ -355,7 +356,7 @@ def score_main(argv: Sequence[str]) -> int:
 
 def _say_unmatched(plan) -> None:
     """One line listing the predictions of a score run that match none of its shapes (ignored)."""
-    from runner.external import unmatched_predictions
+    from tasks.score import unmatched_predictions
 
     for name in plan.methods:
         extra = unmatched_predictions(plan.method_params[name]["pred_dir"], plan.shapes, name)
@@ -408,8 +409,8 @@ def train_main(argv: Sequence[str]) -> int:
         return EXIT_REFUSED
     from tqdm import tqdm
 
-    from runner.tasks import cache_root_of
-    from runner.training import trained_network
+    from runner.plan import cache_root_of
+    from tasks.trained_networks import trained_network
 
     if plan.config.threads:
         from runner.executors import pin_threads

@@ -148,7 +148,7 @@ class RunConfig:
         "identity", {}, "an option of the dataset, e.g. length=100 for street or count=20 for rooms (repeatable; "
         "the dataset checks the name and the value)", kind=dict)
     budget_params: Mapping[str, Any] = _setting(
-        "identity", {}, "override a value of the budget, e.g. num_samples=500000 or iterations=2000 (repeatable; "
+        "identity", {}, "override a value of the budget, e.g. num_samples=500000 or steps=2000 (repeatable; "
         "typed and range-checked; recorded in config.json and every table caption)", kind=dict)
     sweep: Mapping[str, tuple] = _setting(
         "identity", {}, "run every value of a setting in one run directory (repeatable: the cross product). KEY: "

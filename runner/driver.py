@@ -15,13 +15,13 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from runner.cache import task_code_digest
+from tasks.cache import task_code_digest
 from runner.config import ConfigError
-from runner.plan import Plan
-from runner.job import TaskResult, failed_from_exception, now_iso, run_task
+from runner.plan import Plan, build_tasks
+from runner.job import failed_from_exception, now_iso, run_task
 from runner.records import ResultsDB
 from runner.rundir import RunDirectory
-from runner.tasks import build_tasks
+from tasks.context import TaskResult
 
 
 @dataclass(frozen=True)
@@ -112,7 +112,7 @@ def _trained_networks(todo: list) -> frozenset[str]:
     """Fit identities of the learned reconstruction jobs in ``todo`` whose network their cache
     already holds (no job of theirs trains)."""
     from methods.base import get_method
-    from runner.training import network_is_cached
+    from tasks.trained_networks import network_is_cached
 
     found: dict[str, bool] = {}
     for t in todo:

@@ -5,7 +5,7 @@ One folder per (input, seed) under ``--out``, the shapes named as the dataset na
 
 * ``--task reconstruct``: per corruption and seed, ``<out>/<corruption>-s<seed>/``, laid out as the
   ``pointclouds`` dataset reads it: ``<shape>.<ply|npz>`` (the very cloud of
-  :func:`runner.job.input_point_cloud` on the job's sampler stream, with each point's sensor
+  :func:`benchmark.corruptions.input_point_cloud` on the job's sampler stream, with each point's sensor
   position for a scan) and ``<shape>.gt.off`` (the GT mesh), both in the shape's source frame (the
   mesh file's own units and position), so ``run_benchmark.py --task reconstruct --dataset
   pointclouds --data-dir <folder>`` reads them back.
@@ -39,7 +39,7 @@ def export_inputs(plan, out: str | Path, fmt: str = "ply", progress=None) -> lis
 def _shapes(plan, progress):
     """(name, shape) of every shape of the plan that loads; a failing one is reported and skipped."""
     from datasets import MeshError
-    from runner.tasks import load_dataset
+    from tasks.load import load_dataset
 
     dataset = load_dataset(plan.config.dataset, plan.dataset_options)
     for name in plan.shapes:
@@ -86,7 +86,7 @@ def export_clouds(plan, out: str | Path, fmt: str = "ply", progress=None) -> lis
     dataset; its swept ``pc_corruption`` values, or its one) under ``out``; returns the folders.
     A shape that cannot be loaded is skipped with its one-line error passed to ``progress``."""
     from datasets.pointclouds import write_point_cloud
-    from runner.job import input_point_cloud
+    from benchmark.corruptions import input_point_cloud
 
     if fmt not in FORMATS:
         raise ValueError(f"format must be one of {', '.join(FORMATS)}, got {fmt!r}")

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from runner.config import ConfigError, RunConfig, import_plugins
+from tasks import FloorSpec, JobSpec
 
 
 @dataclass(frozen=True)
@@ -48,7 +49,7 @@ class Plan:
     eval_points : effective metric samples per mesh. dataset_options : how workers build the dataset.
     shapes : shape names in dataset order. train_dirs : the extra training folders of the learned
     methods (resolved: ``--train-dir``, else the default); training_set : {folder: digest of its mesh
-    files} (:func:`runner.training.training_folders_digest`), part of the run's identity.
+    files} (:func:`tasks.trained_networks.training_folders_digest`), part of the run's identity.
     """
 
     config: RunConfig
@@ -145,7 +146,7 @@ def resolve(config: RunConfig) -> Plan:
         options["data_dir"] = _existing("--data-dir", config.data_dir, "directory")
     if config.list_file is not None:
         options["list_file"] = _existing("--list", config.list_file, "file")
-    from runner.tasks import load_dataset
+    from tasks.load import load_dataset
 
     try:
         shapes = list(load_dataset(config.dataset, options).names())[: config.limit]
@@ -167,7 +168,7 @@ def resolve(config: RunConfig) -> Plan:
     sweep, variants = _variants(config, methods)
     learned = any(METHODS.get(m).learned for m in methods)
     train_dirs = _train_dirs(config, methods) if budgets and learned else ()
-    from runner.training import training_folders_digest
+    from tasks.trained_networks import training_folders_digest
 
     return Plan(config, methods, params, budgets, preset, int(n), options, tuple(shapes), sweep, variants, train_dirs,
                 training_folders_digest(train_dirs))
@@ -175,7 +176,7 @@ def resolve(config: RunConfig) -> Plan:
 
 def _train_dirs(config: RunConfig, methods: tuple[str, ...]) -> tuple[str, ...]:
     """The extra training folders of a run with learned reconstruction methods (checked)."""
-    from runner.training import default_train_dirs
+    from tasks.trained_networks import default_train_dirs
 
     if config.no_cache:
         raise ConfigError("--no-cache: the learned reconstruction methods keep their trained networks in the "
@@ -192,6 +193,10 @@ def _train_dirs(config: RunConfig, methods: tuple[str, ...]) -> tuple[str, ...]:
     return dirs
 
 
+#: Budget settings renamed since runs were saved with them: old name -> new name.
+RENAMED_BUDGET_SETTINGS = {"iterations": "steps"}
+
+
 def _budgets(config: RunConfig, methods: tuple[str, ...]) -> dict[str, Any]:
     """The budget record named ``config.budget`` of each budget family whose methods fit or train in
     this run, each with the overrides its family reads: ``{family: record}`` (empty in oracle mode
@@ -204,6 +209,10 @@ def _budgets(config: RunConfig, methods: tuple[str, ...]) -> dict[str, Any]:
         raise ConfigError(f"--budget-param: none of {', '.join(methods)} fits or trains under a budget")
     readable = set().union(*(METHODS.get(m).budget_fields() for m in training))
     for key in config.budget_params:
+        if key in RENAMED_BUDGET_SETTINGS:
+            raise ConfigError(f"--budget-param {key}: this budget setting is now called "
+                              f"'{RENAMED_BUDGET_SETTINGS[key]}' (a run directory saved before the rename: pass "
+                              f"--budget-param {RENAMED_BUDGET_SETTINGS[key]}=... into another --out)")
         if key not in readable:
             raise ConfigError(f"--budget-param {key}: no method of this run ({', '.join(methods)}) reads a budget "
                               f"setting '{key}'; the settings they read: {', '.join(sorted(readable))}")
@@ -257,3 +266,50 @@ def _variants(config: RunConfig, methods: tuple[str, ...]) -> tuple[dict[str, tu
                 raise ConfigError(where + str(exc).splitlines()[0]) from None
             out.append(Variant(values, cfg, params, keys, first=(i == 0 and mode == config.mode)))
     return typed, tuple(out)
+
+
+def build_tasks(plan: Plan) -> tuple[list[FloorSpec], list[JobSpec]]:
+    """Floor tasks (one per shape and evaluation sample count, first seed) and jobs (shapes x sweep
+    points x methods x seeds, table order; a job that several sweep points share appears once)."""
+    from methods.base import METHODS
+    from runner.sweep import trains as method_trains, variant_tag
+
+    c = plan.config
+    common = dict(dataset=c.dataset, dataset_options=plan.dataset_options, metric_preset=c.metric_preset,
+                  plugins=c.plugins, threads=c.threads, max_faces=c.max_faces, max_points=c.max_points,
+                  worker_memory=c.worker_memory)
+    cache_dir = None if c.no_cache else str(cache_root_of(c))
+    floors: dict[str, FloorSpec] = {}
+    jobs: dict[str, JobSpec] = {}
+    for s in plan.shapes:
+        for v in plan.variants:
+            vc = v.config
+            floor = FloorSpec(shape=s, seed=c.seeds[0], eval_points=vc.eval_points, **common)
+            reconstruct = ({"pc_points": vc.pc_points, "pc_noise": vc.pc_noise, "pc_corruption": vc.pc_corruption,
+                            "pc_blocks": vc.pc_blocks, "pc_scene_grid": vc.pc_scene_grid}
+                           if vc.task == "reconstruct" else {})
+            floors.setdefault(floor.key, floor)
+            for m in plan.methods:
+                values = v.applicable(m)
+                tag = "" if v.first or not values else variant_tag(values)
+                if vc.mode != c.mode:
+                    tag = f"{vc.mode}" + (f",{tag}" if tag else "")
+                for seed in vc.seeds:
+                    trains = method_trains(m)
+                    extra = {**reconstruct, "train_dirs": plan.train_dirs} if reconstruct and trains else reconstruct
+                    reads = METHODS.get(m).budget_fields()
+                    job = JobSpec(shape=s, seed=seed, method=m, params=v.method_params[m], mode=vc.mode,
+                                  budget=vc.budget if trains else None,
+                                  budget_params={k: x for k, x in vc.budget_params.items() if k in reads}, grid=vc.grid,
+                                  eval_points=vc.eval_points, checkpoints=vc.checkpoints, cache_dir=cache_dir,
+                                  decompose=vc.decompose and vc.mode == "neural" and bool(METHODS.get(m).components),
+                                  sweep=values, variant=tag, task=vc.task, **extra, **common)
+                    jobs.setdefault(job.key, job)
+    return list(floors.values()), list(jobs.values())
+
+
+def cache_root_of(config):
+    """The cache root of a config (``--cache-dir``, else ``$SALSBENCH_CACHE``, else the home default)."""
+    from benchmark.storage import cache_root
+
+    return cache_root(config.cache_dir)

@@ -6,7 +6,7 @@ once (WAL journal), so killing the process loses at most the tasks in flight. Re
 
 Tables (``SCHEMA_VERSION`` 2; columns declared in :mod:`benchmark.schema`):
 
-* ``jobs`` -- one row per job, primary key ``config_hash`` (the task key, :mod:`runner.tasks`);
+* ``jobs`` -- one row per job, primary key ``config_hash`` (the task key, :mod:`tasks`);
   a re-run of a failed job replaces its row.
 * ``floor`` -- one row per shape (GT against a resample of itself), primary key ``floor_hash``.
 * ``checkpoints`` -- one row per checkpoint of a job's fit (``--checkpoints``), primary key

@@ -5,7 +5,7 @@ A sweep key names one setting of a job:
 * a run setting: ``grid``, ``eval_points``, ``budget`` (a budget name), ``seed``, and for the
   reconstruct task ``pc_points`` and ``pc_noise``;
 * a budget value: ``budget.NAME`` for NAME a field of the budget family of some method of the run
-  (:func:`budget_parameters`: ``budget.num_samples``, ``budget.iterations``, ``budget.steps``, ...);
+  (:func:`budget_parameters`: ``budget.num_samples``, ``budget.steps``, ...);
 * a method parameter: ``METHOD.NAME`` (``sals.o_threshold``, ``sals.normals``, ``sals.faces``).
 
 Values are typed and range-checked by the key's :class:`benchmark.params.Param`, exactly as

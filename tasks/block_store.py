@@ -19,7 +19,7 @@ import numpy as np
 
 from benchmark.storage import atomic_write
 from methods.pointcloud.blocks import Block, blocks
-from runner.tasks import JobSpec, digest
+from tasks.spec import JobSpec, digest
 
 CLOUD_FILE = "cloud.npz"
 SCENE_FILE = "scene.json"

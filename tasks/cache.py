@@ -6,20 +6,16 @@ Layout under the cache root (:func:`benchmark.storage.cache_root`): ``fields/`` 
 (:func:`benchmark.storage.write_checked`); a damaged entry is recomputed and counted
 (:class:`benchmark.storage.CacheStats`), never used.
 
-Keys:
-
-* weights: shape content hash, method, its network input/output, the budget's values, the seed,
-  and the *code digest* of the fit: the source of the method's module and of every project module
-  it, the fitting loop, the sampler and the exact fields import (:func:`code_digest`).
-* meshes: the weights key (neural) or the mode (oracle), the method's full parameters, the grid and
-  the code digest of the method's module (its extractor and query code included).
+Keys, all built here: weights (:func:`fit_key`), meshes (:func:`mesh_key`), the reconstruct
+task's trained networks (:func:`network_key`), and the code digest recorded with every result
+(:func:`task_code_digest`).
 
 Jobs that need the same fit (a sweep of extraction settings) share it: the job that fits holds the
 weights entry's lock (``locks/weights_<method>_<key>.lock``, :meth:`RunCaches.fit_lock`); the others wait
 and load the saved weights. With the caches off every job fits for itself.
 
 :func:`code_digest` follows the imports it finds in the source (``import``/``from`` statements,
-also inside functions) through the project's packages (benchmark, methods, datasets, runner) and hashes
+also inside functions) through the project's packages (benchmark, methods, datasets, tasks, runner) and hashes
 what every module reached computes: its syntax tree without docstrings, so comments, docstrings
 and layout do not invalidate a cache, while any change of code does. A module that cannot be found raises instead of counting as empty, so a
 renamed module never silently stops invalidating the caches that depend on it.
@@ -41,9 +37,10 @@ import numpy as np
 
 from benchmark.field_cache import FieldCache
 from benchmark.storage import CacheStats, CorruptEntry, exclusive_lock, read_checked, write_checked
+from tasks.spec import digest
 
 #: Top-level packages whose modules enter code digests.
-PROJECT_PACKAGES = ("benchmark", "methods", "datasets", "runner")
+PROJECT_PACKAGES = ("benchmark", "methods", "datasets", "tasks", "runner")
 
 
 def _module_file(name: str) -> Path:
@@ -182,15 +179,59 @@ def code_digest(*modules: str) -> str:
     return h.hexdigest()[:16]
 
 
-def task_code_digest(spec) -> str:
-    """The code that computes a task's result: the job function and everything it imports, and,
-    for a job, its method's module (a plugin's too)."""
-    modules = ["runner.job"]
+def task_code_modules(spec) -> tuple[str, ...]:
+    """The modules that compute a task's result (with what they import, :func:`code_modules`): its
+    body (``spec.body``, a module of :mod:`tasks`), the loading of its shape and, for a job,
+    its method's module (a plugin's too). The task frame, the command line, the executors, the
+    progress display and the reports are not among them: an edit there leaves every result valid."""
+    modules = [spec.body, "tasks.load"]
     if spec.kind == "job":
         from methods.base import METHODS
 
         modules.append(METHODS.get(spec.method).__module__)
-    return code_digest(*modules)
+    return tuple(modules)
+
+
+def task_code_digest(spec) -> str:
+    """The code digest of a task's result (:func:`task_code_modules`), recorded with its row: a
+    row from other code is stale."""
+    return code_digest(*task_code_modules(spec))
+
+
+def fit_key(method, shape_hash: str, budget: str | None, budget_params: dict, seed: int) -> str:
+    """The cache key of a per-shape fit: the shape's content hash, the method whose fit it is
+    (``method.fit_name``), its network's input and output, every value of the budget record, the
+    seed, the fit's code (:func:`fit_code_digest`) and the method's fit parameters."""
+    from methods.core.budgets import budget_values
+
+    return digest({"shape": shape_hash, "method": method.fit_name, "input": method.input_kind,
+                   "output_dim": method.output_dim, "budget": budget_values(method.budget(budget, budget_params)),
+                   "seed": seed, "code": fit_code_digest(method), "fit_params": method.fit_params()})
+
+
+def mesh_key(method, shape_hash: str, mode: str, grid: int, weights_key: str | None) -> str:
+    """The cache key of an extracted mesh: the shape, the method and its full parameters, the mode,
+    the grid, the fit it extracts (None in oracle mode), the extraction's code
+    (:func:`extraction_code_digest`) and the data it reads (``method.extraction_data_digest``)."""
+    return digest({"shape": shape_hash, "method": method.name, "params": method.params, "mode": mode,
+                   "grid": grid, "weights": weights_key, "code": extraction_code_digest(method),
+                   "data": method.extraction_data_digest()})
+
+
+def network_code_modules(method) -> tuple[str, ...]:
+    """The modules whose code a learned method's network depends on (with what they import): the
+    method's module and its ``training_modules``."""
+    return (type(method).__module__, *method.training_modules)
+
+
+def network_key(method, budget, training_set: str, training_seed: int) -> str:
+    """The cache key of a network a learned reconstruction method trains across shapes: its training
+    set's digest, the method, every value of its budget record, the training seed and the code of
+    :func:`network_code_modules`."""
+    from methods.core.budgets import budget_values
+
+    return digest({"training_set": training_set, "method": method.name, "budget": budget_values(budget),
+                   "seed": training_seed, "code": code_digest(*network_code_modules(method))})
 
 
 def fit_code_modules(method) -> tuple[str, ...]:

@@ -7,8 +7,8 @@ built-in test shape by construction and by hash) plus every mesh of the run's ``
 default the Thingi10K folder of ``../shared/data`` where it exists). Cache key: the training set's
 digest (content hashes and names), the method, every value of its budget record (the fields its
 family reads, not the budget's name), the training seed and the code
-digest of the method's module and the training loop (:func:`runner.cache.code_digest`).
-Entries: ``<cache root>/knn_weights/<method>_<key>.pt``, written with a checksum; a job that needs a
+digest of the method's module and the training loop (:func:`tasks.cache.code_digest`).
+Entries: ``<cache root>/trained_networks/<method>_<key>.pt``, written with a checksum; a job that needs a
 network another job is training waits on the entry's lock (``locks/``) and then loads it.
 """
 
@@ -20,11 +20,11 @@ from pathlib import Path
 from typing import Callable
 
 from benchmark.storage import CacheStats, CorruptEntry, exclusive_lock, read_checked, write_checked
-from runner.provenance import REPO
-from runner.tasks import digest
 
+#: The cache folder of the trained networks (every learned reconstruction method's, one file each).
+TRAINED_NETWORKS = "trained_networks"
 #: Extra training meshes used when a run names none: the Thingi10K meshes of ../shared/data.
-DEFAULT_TRAIN_DIR = REPO.parent / "shared" / "data" / "thingi10k"
+DEFAULT_TRAIN_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "thingi10k"
 
 
 def training_folders_digest(dirs: tuple[str, ...]) -> dict[str, str]:
@@ -68,34 +68,25 @@ def network_training_record(method, budget, train_dirs: tuple[str, ...]):
                           f"parts{where}", content_hashes=frozenset(s.content_hash for s in shapes))
 
 
-def network_code_modules(method) -> tuple[str, ...]:
-    """The modules whose code a learned method's network depends on (with what they import): the
-    method's module and its ``training_modules``."""
-    return (type(method).__module__, *method.training_modules)
-
-
-def network_key(method, budget, train_dirs: tuple[str, ...]) -> tuple[str, tuple]:
-    """(cache key, training shapes) of the network ``method`` trains at ``budget``."""
-    from runner.cache import code_digest
-    from methods.core.budgets import budget_values
+def trained_network_key(method, budget, train_dirs: tuple[str, ...]) -> tuple[str, tuple]:
+    """(cache key, training shapes) of the network ``method`` trains at ``budget``
+    (:func:`tasks.cache.network_key`)."""
+    from tasks.cache import network_key
     from methods.pointcloud.training_set import DEFAULT_TRAINING_SEED, training_set_digest
 
     shapes = _shapes(budget.training_shapes, tuple(train_dirs))
-    key = digest({"training_set": training_set_digest(shapes), "method": method.name,
-                  "budget": budget_values(budget), "seed": DEFAULT_TRAINING_SEED,
-                  "code": code_digest(*network_code_modules(method))})
-    return key, shapes
+    return network_key(method, budget, training_set_digest(shapes), DEFAULT_TRAINING_SEED), shapes
 
 
 def network_path(cache_root: str | Path, method, key: str) -> Path:
     """Where the cache under ``cache_root`` keeps ``method``'s network of cache ``key``."""
-    return Path(cache_root) / "knn_weights" / f"{method.name}_{key}.pt"
+    return Path(cache_root) / TRAINED_NETWORKS / f"{method.name}_{key}.pt"
 
 
 def network_is_cached(method, budget, train_dirs: tuple[str, ...], cache_root: str | Path) -> bool:
     """Whether the cache under ``cache_root`` holds the network ``method`` trains at ``budget`` (a
     file is there; :func:`trained_network` still checks it when it reads it)."""
-    return network_path(cache_root, method, network_key(method, budget, train_dirs)[0]).is_file()
+    return network_path(cache_root, method, trained_network_key(method, budget, train_dirs)[0]).is_file()
 
 
 def trained_network(method, budget, train_dirs: tuple[str, ...], cache_root: str | Path, device=None,
@@ -106,11 +97,11 @@ def trained_network(method, budget, train_dirs: tuple[str, ...], cache_root: str
     from methods.core.weights import WeightsError
     from methods.pointcloud.training_set import DEFAULT_TRAINING_SEED
 
-    key, shapes = network_key(method, budget, train_dirs)
+    key, shapes = trained_network_key(method, budget, train_dirs)
     root = Path(cache_root)
     path = network_path(root, method, key)
     facts = {"network_key": key, "trained": 0, "training_shapes": len(shapes)}
-    with exclusive_lock(root / "locks" / f"knn_weights_{method.name}_{key}.lock"):
+    with exclusive_lock(root / "locks" / f"{TRAINED_NETWORKS}_{method.name}_{key}.lock"):
         try:
             data = read_checked(path)
         except CorruptEntry as exc:

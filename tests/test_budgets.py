@@ -9,11 +9,11 @@ import pytest
 from benchmark.params import Param, ParamError, setting
 from methods.base import METHODS
 from methods.core.budgets import BUDGET_FAMILIES, budget_values, register_budget_family
-from runner.cache import code_modules, fit_code_modules
+from tasks.cache import code_modules, fit_code_modules
 from runner.config import ConfigError, RunConfig
 from runner.plan import resolve
-from runner.tasks import build_tasks
-from runner.training import network_code_modules
+from runner.plan import build_tasks
+from tasks.cache import network_code_modules
 
 
 @dataclass(frozen=True)

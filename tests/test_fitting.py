@@ -16,9 +16,9 @@ from methods.core.training_loop import FittingError
 from methods.core.network import GridNetwork, make_network
 from methods.core.query import dense_grid_points, evaluate
 
-TOY = Budget("toy", depth=3, width=32, iterations=60, batch_size=256, num_samples=2000, log_every=10)
+TOY = Budget("toy", depth=3, width=32, steps=60, batch_size=256, num_samples=2000, log_every=10)
 #: A small grid backbone (levels 8/16/32 x 2 channels, 3 x 32 head), the *cpu* budget's optimizer settings.
-GRID_TOY = Budget("toy-grid", depth=3, width=32, iterations=200, batch_size=1024, num_samples=20_000, lr=1e-2,
+GRID_TOY = Budget("toy-grid", depth=3, width=32, steps=200, batch_size=1024, num_samples=20_000, lr=1e-2,
                   lr_final=1e-4, log_every=20, backbone="grid", grid_resolutions=(8, 16, 32), grid_channels=2,
                   lr_grid=1e-2, lr_grid_final=1e-4, fused_adam=True)
 
@@ -54,7 +54,7 @@ pytestmark = pytest.mark.usefixtures("torch_threads")
 def test_budgets_are_data_and_paper_matches_spec():
     paper = BUDGETS["paper"]
     assert (paper.depth, paper.width, paper.beta) == (9, 512, 100.0)
-    assert (paper.iterations, paper.batch_size, paper.num_samples) == (100_000, 10_000, 10_000_000)
+    assert (paper.steps, paper.batch_size, paper.num_samples) == (100_000, 10_000, 10_000_000)
     assert (paper.lr, paper.lr_final) == (1e-3, 1e-5)
     assert set(BUDGETS) == {"paper", "quick", "tiny", "cpu", "cpu-mlp", "tiny-grid"}
     cpu, mlp = BUDGETS["cpu"], BUDGETS["cpu-mlp"]  # the backbone comparison: the same samples, no grid
@@ -72,11 +72,11 @@ def test_mlp_budgets_keep_their_values_network_and_optimizer():
                   grid_resolutions=(), grid_channels=0, lr_grid=0.0, lr_grid_final=0.0, fused_adam=False,
                   warmup_fraction=0.0)
     expected = {
-        "paper": dict(depth=9, width=512, iterations=100_000, batch_size=10_000, num_samples=10_000_000, lr=1e-3,
+        "paper": dict(depth=9, width=512, steps=100_000, batch_size=10_000, num_samples=10_000_000, lr=1e-3,
                       log_every=500),
-        "quick": dict(depth=5, width=128, iterations=1_000, batch_size=2_048, num_samples=200_000, lr=1e-3,
+        "quick": dict(depth=5, width=128, steps=1_000, batch_size=2_048, num_samples=200_000, lr=1e-3,
                       log_every=50),
-        "tiny": dict(depth=4, width=64, iterations=200, batch_size=1_024, num_samples=20_000, lr=3e-3, log_every=20),
+        "tiny": dict(depth=4, width=64, steps=200, batch_size=1_024, num_samples=20_000, lr=3e-3, log_every=20),
     }
     for name, values in expected.items():
         b = BUDGETS[name]
@@ -91,7 +91,7 @@ def test_cpu_budget_is_the_grid_backbone_with_decaying_learning_rates():
     cpu = BUDGETS["cpu"]
     assert (cpu.backbone, cpu.grid_resolutions, cpu.grid_channels) == ("grid", (16, 32, 64), 4)
     assert (cpu.depth, cpu.width, cpu.fused_adam) == (3, 64, True)
-    assert (cpu.batch_size, cpu.num_samples, cpu.iterations) == (4_096, 1_000_000, 3_000)
+    assert (cpu.batch_size, cpu.num_samples, cpu.steps) == (4_096, 1_000_000, 3_000)
     model = make_network(6, 2, **cpu.network_config())
     assert isinstance(model, GridNetwork) and model.config["grid_resolutions"] == (16, 32, 64)
     head, grid = parameter_groups(model, cpu)
@@ -99,7 +99,7 @@ def test_cpu_budget_is_the_grid_backbone_with_decaying_learning_rates():
     assert grid["params"] == list(model.encoder.parameters()) and grid["weight_decay"] == 0.0
     for group in (head, grid):  # cosine from 1e-2 to 1e-4, reached at the last step
         assert group["lr_start"] == 1e-2 and group["lr_end"] == 1e-4
-        assert cosine_lr(cpu.iterations, cpu.iterations, group["lr_start"], group["lr_end"]) == pytest.approx(1e-4)
+        assert cosine_lr(cpu.steps, cpu.steps, group["lr_start"], group["lr_end"]) == pytest.approx(1e-4)
 
 
 def test_budget_backbone_settings_are_checked():
@@ -141,9 +141,9 @@ def test_grid_budgets_warm_up_and_the_fraction_is_checked():
         fit(Recording(), samples, targets, replace(TOY, warmup_fraction=0.2), seed=0, device="cpu")
     finally:
         fitting_module.make_optimizer = original
-    W = round(0.2 * TOY.iterations)
-    assert seen[0] == pytest.approx(TOY.lr / W) and seen[W - 1] == pytest.approx(cosine_lr(W - 1, TOY.iterations, TOY.lr, TOY.lr_final))
-    assert seen[W:] == pytest.approx([cosine_lr(t, TOY.iterations, TOY.lr, TOY.lr_final) for t in range(W, TOY.iterations)])
+    W = round(0.2 * TOY.steps)
+    assert seen[0] == pytest.approx(TOY.lr / W) and seen[W - 1] == pytest.approx(cosine_lr(W - 1, TOY.steps, TOY.lr, TOY.lr_final))
+    assert seen[W:] == pytest.approx([cosine_lr(t, TOY.steps, TOY.lr, TOY.lr_final) for t in range(W, TOY.steps)])
 
 
 def test_a_dead_network_is_a_fitting_error_not_an_empty_mesh():
@@ -169,7 +169,7 @@ def test_same_seed_same_weights_and_loss_curve_and_it_learns(fit_seed, measured)
     b = fit(SphereSDF(), samples, targets, TOY, seed=fit_seed, device="cpu")
     c = fit(SphereSDF(), samples, targets, TOY, seed=fit_seed + 1, device="cpu")
     measured(loss_ratio=a.final_loss / a.losses[0])
-    assert a.losses.shape == (TOY.iterations,) and a.iterations == TOY.iterations
+    assert a.losses.shape == (TOY.steps,) and a.steps == TOY.steps
     np.testing.assert_array_equal(a.losses, b.losses)
     for pa, pb in zip(a.model.parameters(), b.model.parameters()):
         assert torch.equal(pa, pb)
@@ -206,7 +206,7 @@ def test_nan_loss_and_bad_targets_raise_fitting_error():
 
 def test_model_bytes_round_trip():
     samples, targets = _toy_data()
-    budget = replace(TOY, iterations=5)
+    budget = replace(TOY, steps=5)
     res = fit(SphereSDF(), samples, targets, budget, seed=0, device="cpu")
     data = model_to_bytes(res.model, budget, "toy-sdf", res.final_loss)
     model, loss = model_from_bytes(data, device="cpu", method_name="toy-sdf")
@@ -246,7 +246,7 @@ def test_grid_backbone_fits_a_sphere_sdf_deterministically(fit_seed, measured):
     assert near_error < 0.002
     assert radial < 0.01
     assert area(V, F) == pytest.approx(area(Ve, Fe), rel=0.02)
-    short = replace(GRID_TOY, iterations=20)
+    short = replace(GRID_TOY, steps=20)
     a, b, c = (fit(SphereSDF(), samples, targets, short, seed=s, device="cpu") for s in (3, 3, 4))
     np.testing.assert_array_equal(a.losses, b.losses)
     assert all(torch.equal(pa, pb) for pa, pb in zip(a.model.parameters(), b.model.parameters()))

@@ -1,7 +1,8 @@
 """The import contract of docs/ARCHITECTURE.md, checked over the source: every import statement of
 every project module (also those inside functions), so a lazy import cannot hide an upward arrow.
 
-Layers, lowest first: foundation (``benchmark``, ``datasets``), methods, reports, run (``runner``).
+Layers, lowest first: foundation (``benchmark``, ``datasets``), methods, reports, tasks (what a
+task computes), run (``runner``).
 A module may import its own layer and the ones below it; and the modules import each other without
 a cycle.
 """
@@ -13,11 +14,11 @@ from pathlib import Path
 
 import pytest
 
-from runner.cache import project_imports
+from tasks.cache import project_imports
 
 REPO = Path(__file__).resolve().parents[1]
-PACKAGES = ("benchmark", "datasets", "methods", "reports", "runner")
-LAYERS = ("foundation", "methods", "reports", "run")
+PACKAGES = ("benchmark", "datasets", "methods", "reports", "tasks", "runner")
+LAYERS = ("foundation", "methods", "reports", "tasks", "run")
 
 
 def layer(module: str) -> str | None:

@@ -171,7 +171,7 @@ def test_neural_sals_cube_finds_the_twelve_sharp_edges(fit_seed, torch_threads, 
     from methods.core.fitting import get_budget
 
     V, F, corners, edges = generic_box()
-    budget = get_budget("cpu", {"iterations": 1000})
+    budget = get_budget("cpu", {"steps": 1000})
     samples = sample_training_data(V, F, budget.num_samples, np.random.default_rng(fit_seed))
     method = get_method("sals", o_threshold=PAPER_O_THRESHOLD)
     res = fit(method, samples, method.training_targets(ExactFields(V, F), samples), budget, seed=fit_seed, device="cpu")

@@ -47,7 +47,7 @@ def test_the_caption_states_the_values_of_each_budget_family_of_the_run():
                "methods": ["sals-knn", "poco"], "shapes": ["a"], "metric_preset": "default", "eval_points": 1000,
                "method_notes": {}}
     assert "budget: cpu (knn: k 20; poco: steps 1200)" in protocol_caption(context)
-    one_family = dict(context, budget_values={"encode": {"iterations": 3000}})
-    assert "budget: cpu (iterations 3000)" in protocol_caption(one_family)
-    recorded_before_families = dict(context, budget_values={"iterations": 3000})  # values not keyed by family
-    assert "budget: cpu (iterations 3000)" in protocol_caption(recorded_before_families)
+    one_family = dict(context, budget_values={"encode": {"steps": 3000}})
+    assert "budget: cpu (steps 3000)" in protocol_caption(one_family)
+    recorded_before_families = dict(context, budget_values={"steps": 3000})  # values not keyed by family
+    assert "budget: cpu (steps 3000)" in protocol_caption(recorded_before_families)

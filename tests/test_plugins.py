@@ -55,8 +55,8 @@ def test_the_example_plugin_is_a_row_of_a_run(tmp_path):
 
 
 def test_a_plugin_files_code_enters_the_job_key(tmp_path):
-    from runner.cache import code_digest, task_code_digest
-    from runner.tasks import JobSpec
+    from tasks.cache import code_digest, task_code_digest
+    from tasks import JobSpec
 
     copy = tmp_path / "my_hull.py"
     copy.write_text(EXAMPLE.read_text().replace('"convex-hull"', '"my-hull"'))

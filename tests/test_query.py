@@ -178,7 +178,7 @@ def test_sparse_edges_equal_dense_on_fitted_sals_networks(index, torch_threads):
 
     shape = generate_shape(index, "closed", 0)
     sals = get_method("sals")
-    budget = get_budget("cpu", {"iterations": 2000, "batch_size": 1024, "num_samples": 200_000})
+    budget = get_budget("cpu", {"steps": 2000, "batch_size": 1024, "num_samples": 200_000})
     samples = sample_training_data(shape.vertices, shape.faces, budget.num_samples, np.random.default_rng(index))
     fields = ExactFields(shape.vertices, shape.faces)
     model = fit(sals, samples, sals.training_targets(fields, samples), budget, seed=index).model

@@ -219,14 +219,14 @@ def test_sweep_csv_intervals_and_p_values(noisy, tmp_path):
 def test_a_budget_sweep_plots_each_metric_against_its_fit_seconds():
     from reports.sweep import cost_plot
 
-    context = dict(CONTEXT, methods=["sals", "sdf"], shapes=SHAPES, seeds=[0], sweep={"budget.iterations": [750, 3000]})
-    rows = [job(shape, m, "neural", cd, **{"sweep.budget.iterations": v}) | {"fit_s": seconds}
+    context = dict(CONTEXT, methods=["sals", "sdf"], shapes=SHAPES, seeds=[0], sweep={"budget.steps": [750, 3000]})
+    rows = [job(shape, m, "neural", cd, **{"sweep.budget.steps": v}) | {"fit_s": seconds}
             for m, scale in (("sals", 1.0), ("sdf", 2.0)) for v, seconds in ((750, 6.0), (3000, 24.0))
             for shape, cd in zip(SHAPES, (0.002 * scale * 3000 / v, 0.004 * scale * 3000 / v))]
     sweep = build_sweep(pd.DataFrame(rows), context)
-    seconds = sweep.stats["budget.iterations"]["mean"]["fit_s"].unstack("@series")
+    seconds = sweep.stats["budget.steps"]["mean"]["fit_s"].unstack("@series")
     assert seconds.loc[0, "sals"] == 6.0 and seconds.loc[1, "sdf"] == 24.0  # the x of each point: mean fit seconds
-    assert cost_plot(sweep, "budget.iterations").startswith(b"<?xml")
+    assert cost_plot(sweep, "budget.steps").startswith(b"<?xml")
     assert cost_plot(build_sweep(threshold_results(), SWEEP), "sals.o_threshold") is not None  # fits ran there too
     oracle = threshold_results().assign(fit_s=np.nan)
     assert cost_plot(build_sweep(oracle, SWEEP), "sals.o_threshold") is None  # nothing fitted: no cost axis
@@ -237,11 +237,11 @@ def test_a_method_extracting_anothers_fits_is_plotted_at_that_fits_seconds():
     from reports.sweep import cost_seconds
 
     context = dict(CONTEXT, methods=["sdf", "sdf-ndc"], shapes=SHAPES, seeds=[0],
-                   sweep={"budget.iterations": [750, 3000]})
-    rows = [job(shape, m, "neural", 0.002, **{"sweep.budget.iterations": v})
+                   sweep={"budget.steps": [750, 3000]})
+    rows = [job(shape, m, "neural", 0.002, **{"sweep.budget.steps": v})
             | {"fit_s": seconds if m == "sdf" else np.nan, "cache": "" if m == "sdf" else "weights"}
             for m in ("sdf", "sdf-ndc") for v, seconds in ((750, 6.0), (3000, 24.0)) for shape in SHAPES]
     sweep = build_sweep(pd.DataFrame(rows), context)
-    assert sweep.stats["budget.iterations"]["mean"]["fit_s"].unstack("@series")["sdf-ndc"].isna().all()
-    seconds = cost_seconds(sweep, "budget.iterations")
+    assert sweep.stats["budget.steps"]["mean"]["fit_s"].unstack("@series")["sdf-ndc"].isna().all()
+    seconds = cost_seconds(sweep, "budget.steps")
     assert seconds["sdf-ndc"].tolist() == [6.0, 24.0] == seconds["sdf"].tolist()  # sdf-ndc extracts sdf's fits

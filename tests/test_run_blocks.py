@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from runner.block_store import CLOUD_FILE, BlockResult, BlockTask, Scene, write_block, write_scene
+from tasks.block_store import CLOUD_FILE, BlockResult, BlockTask, Scene, write_block, write_scene
 from runner.blocks import crop_cloud
 from runner.config import ConfigError, RunConfig
-from runner.tasks import JobSpec
+from tasks import JobSpec
 from methods.pointcloud.blocks import Block
 
 REPO = Path(__file__).resolve().parents[1]
@@ -65,7 +65,7 @@ def test_crop_cloud_reads_the_box_in_chunks(tmp_path, monkeypatch):
 
 
 def test_a_stored_block_round_trips(tmp_path):
-    from runner.block_store import read_blocks
+    from tasks.block_store import read_blocks
 
     job = _job(grid=8, pc_blocks=8, blocks_dir=str(tmp_path))
     write_scene(tmp_path, Scene(8, 1.0, "given"))

@@ -1,4 +1,4 @@
-"""The run layer's caches (runner.cache): code digests follow the imports, damaged entries
+"""The run layer's caches (tasks.cache): code digests follow the imports, damaged entries
 are recomputed and counted, never used."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from runner.cache import RunCaches, code_digest
+from tasks.cache import RunCaches, code_digest
 from runner.cli import main
 from benchmark.storage import CacheStats
 from tests.fake_methods import PLUGIN

@@ -470,7 +470,7 @@ def test_a_changed_method_is_refused_in_its_run_directory_or_recomputed_on_reque
     whose code did not change, are kept)."""
     import sys
 
-    from runner.cache import code_digest
+    from tasks.cache import code_digest
     from methods.base import METHODS
 
     monkeypatch.syspath_prepend(str(tmp_path))
@@ -550,7 +550,7 @@ def test_pc_points_over_the_point_limit_are_refused_before_any_work(tmp_path, ca
 
 def test_a_cloud_over_the_point_limit_is_too_large():
     from datasets.io import Shape
-    from runner.job import ShapeTooLarge, check_size
+    from tasks.load import ShapeTooLarge, check_size
 
     cloud = Shape("scan", np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), source="/data/scan.xyz",
                   points=np.zeros((1001, 3)))

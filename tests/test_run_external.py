@@ -16,7 +16,7 @@ import trimesh
 
 from methods.base import METHODS
 from runner.cli import EXIT_FAILED_TASKS, EXIT_REFUSED, main
-from runner.external import external_seconds, prediction_file, unmatched_predictions
+from tasks.score import external_seconds, prediction_file, unmatched_predictions
 
 SHIFT = 0.6
 

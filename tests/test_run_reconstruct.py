@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 
 from runner.cli import EXIT_REFUSED, main
-from runner.job import input_point_cloud
+from benchmark.corruptions import input_point_cloud
 from datasets import get_dataset
 
 
@@ -127,7 +127,7 @@ def test_a_learned_method_trains_once_and_later_jobs_and_runs_load_its_network(t
 def test_the_knn_recipe_sweeps_k_over_the_learned_method_only(tmp_path):
     from runner.cli import build_parser, configure
     from runner.plan import resolve
-    from runner.tasks import build_tasks
+    from runner.plan import build_tasks
 
     args = build_parser().parse_args(["--recipe", "knn", "--methods", "sals-knn", "poisson", "--limit", "1",
                                       "--out", str(tmp_path / "r")])

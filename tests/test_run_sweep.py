@@ -75,13 +75,13 @@ def test_a_sweep_of_a_setting_the_fit_reads_fits_each_value(fakes, tmp_path):
 
 def test_a_budget_sweep_fits_each_value_and_adds_one_oracle_ceiling(fakes, tmp_path):
     out = tmp_path / "run"
-    assert main(neural_args(out, tmp_path / "cache", "--sweep", "budget.iterations=20,40")) == 0
+    assert main(neural_args(out, tmp_path / "cache", "--sweep", "budget.steps=20,40")) == 0
     df = results(out)
     neural, oracle = df[df["mode"] == "neural"], df[df["mode"] == "oracle"]
-    assert list(neural["sweep.budget.iterations"]) == [20, 40] and neural["fitted"].sum() == 2
+    assert list(neural["sweep.budget.steps"]) == [20, 40] and neural["fitted"].sum() == 2
     assert neural["fit_loss"].nunique() == 2
     # the budget does not apply to the exact field: one ceiling job, its sweep value empty
-    assert len(oracle) == 1 and oracle["sweep.budget.iterations"].isna().all() and oracle["fitted"].sum() == 0
+    assert len(oracle) == 1 and oracle["sweep.budget.steps"].isna().all() and oracle["fitted"].sum() == 0
     info = [json.loads(r[0]) for r in sqlite3.connect(out / "results.db").execute(
         "SELECT info FROM jobs WHERE mode = 'neural'")]
     assert sorted(i["fit_steps"] for i in info) == [20, 40]  # rows come in the order the jobs finished
@@ -89,10 +89,10 @@ def test_a_budget_sweep_fits_each_value_and_adds_one_oracle_ceiling(fakes, tmp_p
 
 def test_budget_params_override_the_budget_and_are_recorded(fakes, tmp_path):
     out = tmp_path / "run"
-    assert main(neural_args(out, tmp_path / "cache", "--budget-param", "iterations=30")) == 0
+    assert main(neural_args(out, tmp_path / "cache", "--budget-param", "steps=30")) == 0
     record = json.loads((out / "config.json").read_text())
-    assert record["config"]["budget_params"] == {"iterations": 30}
-    assert record["resolved"]["budget"]["encode"]["iterations"] == 30
+    assert record["config"]["budget_params"] == {"steps": 30}
+    assert record["resolved"]["budget"]["encode"]["steps"] == 30
     info = json.loads(sqlite3.connect(out / "results.db").execute("SELECT info FROM jobs").fetchone()[0])
     assert info["fit_steps"] == 30
 
@@ -102,7 +102,7 @@ def test_budget_params_override_the_budget_and_are_recorded(fakes, tmp_path):
     (["--sweep", "test_sdf.level=0,0.5"], "test_sdf.level='0.5': expected float in (-0.1, 0.1)"),
     (["--sweep", "grid=32,32"], "values must not repeat"),
     (["--sweep", "grid"], "use KEY=V1,V2"),
-    (["--sweep", "budget.iterations=1,2", "--mode", "oracle"], "oracle mode fits nothing"),
+    (["--sweep", "budget.steps=1,2", "--mode", "oracle"], "oracle mode fits nothing"),
     (["--sweep", "seed=0,1", "--seed", "3"], "both give the seeds"),
     (["--budget-param", "iters=3"], "no method of this run (test_sdf) reads a budget setting 'iters'"),
 ])
@@ -158,7 +158,7 @@ def test_a_killed_sweep_resumes_to_the_uninterrupted_table(tmp_path):
 
 def test_jobs_that_share_a_fit_are_scheduled_after_every_fitting_job(fakes, tmp_path):
     from runner.driver import _schedule
-    from runner.tasks import build_tasks
+    from runner.plan import build_tasks
 
     args = build_parser().parse_args(neural_args(tmp_path / "r", tmp_path / "cache", "--limit", "2", "--sweep",
                                                  "test_sdf.level=0,0.01", "--no-ceiling"))
@@ -175,7 +175,7 @@ def test_a_method_that_extracts_another_methods_fit_runs_after_every_job_that_fi
     """``sdf-ndc`` extracts the ``sdf`` network (``fit_of``): its jobs follow every fitting job, so
     two workers never fit the same network at once or wait on each other's fit."""
     from runner.driver import _schedule
-    from runner.tasks import build_tasks
+    from runner.plan import build_tasks
 
     args = build_parser().parse_args(["--methods", "sdf", "sdf-ndc", "--limit", "2", "--out", str(tmp_path / "r")])
     plan = resolve(configure(args, tmp_path / "r"))
@@ -194,7 +194,7 @@ def test_a_k_sweep_runs_the_jobs_of_networks_trained_early_while_the_last_one_tr
     import trimesh
 
     from runner.driver import _schedule
-    from runner.tasks import build_tasks
+    from runner.plan import build_tasks
 
     (tmp_path / "train").mkdir()
     trimesh.creation.box().export(tmp_path / "train" / "box.ply")
@@ -219,8 +219,8 @@ def test_jobs_of_a_network_the_cache_holds_keep_the_table_order(tmp_path):
 
     from methods.base import get_method
     from runner.driver import _schedule, _trained_networks
-    from runner.tasks import build_tasks
-    from runner.training import network_key, network_path
+    from runner.plan import build_tasks
+    from tasks.trained_networks import network_path, trained_network_key
 
     (tmp_path / "train").mkdir()
     trimesh.creation.box().export(tmp_path / "train" / "box.ply")
@@ -232,7 +232,7 @@ def test_jobs_of_a_network_the_cache_holds_keep_the_table_order(tmp_path):
     floors, jobs = build_tasks(plan)
     k10 = next(j for j in jobs if j.budget_params.get("k") == 10)
     method = get_method(k10.method, **k10.params)
-    path = network_path(cache, method, network_key(method, method.budget(k10.budget, k10.budget_params),
+    path = network_path(cache, method, trained_network_key(method, method.budget(k10.budget, k10.budget_params),
                                                    k10.train_dirs)[0])
     path.parent.mkdir(parents=True)
     path.write_bytes(b"weights")
@@ -247,7 +247,7 @@ def test_jobs_of_a_network_the_cache_holds_keep_the_table_order(tmp_path):
 
 def test_a_per_cloud_optimisation_shares_no_fit_across_jobs(tmp_path):
     """CAP-UDF optimises a field per input cloud: its jobs have no shared fit, so none waits on another."""
-    from runner.tasks import build_tasks
+    from runner.plan import build_tasks
 
     args = build_parser().parse_args(["--task", "reconstruct", "--methods", "cap-udf", "--limit", "2", "--out",
                                       str(tmp_path / "r")])
@@ -256,7 +256,7 @@ def test_a_per_cloud_optimisation_shares_no_fit_across_jobs(tmp_path):
 
 
 def test_a_parameter_only_the_neural_query_reads_gives_one_ceiling_job(tmp_path):
-    from runner.tasks import build_tasks
+    from runner.plan import build_tasks
 
     args = build_parser().parse_args(["--methods", "sals", "--limit", "1", "--sweep", "sals.o_threshold=0.1,0.3",
                                       "--sweep", "sals.normals=yes,no", "--out", str(tmp_path / "r")])

@@ -6,7 +6,7 @@ import pytest
 from benchmark.metrics import evaluate
 from methods.extractors import ndc
 from methods.base import METHODS, available_methods, get_method
-from runner.cache import fit_code_digest
+from tasks.cache import fit_code_digest
 from runner.config import ConfigError, RunConfig
 from runner.plan import resolve
 from tests.test_methods import N_POINTS, _oracle, edge_coverage, generic_box

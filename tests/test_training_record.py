@@ -67,7 +67,7 @@ def test_rows_say_which_shapes_were_seen_and_the_summary_gives_the_unseen_means(
 def test_a_learned_networks_record_holds_its_training_shapes():
     from datasets import get_dataset
     from methods.base import get_method
-    from runner.training import network_training_record
+    from tasks.trained_networks import network_training_record
 
     method = get_method("sals-knn")
     budget = method.budget("tiny", {})

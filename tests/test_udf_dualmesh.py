@@ -6,7 +6,7 @@ import numpy as np
 from benchmark.fields import ExactFields
 from benchmark.metrics import evaluate
 from methods.base import get_method
-from runner.cache import fit_code_digest
+from tasks.cache import fit_code_digest
 from tests.test_methods import N_POINTS, _oracle, edge_coverage, generic_box
 
 

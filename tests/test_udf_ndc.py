@@ -12,7 +12,7 @@ from benchmark.grid import spacing
 from methods.extractors import ndc, undc
 from methods.training import undc as undc_training
 from methods.base import available_methods, get_method
-from runner.cache import fit_code_digest
+from tasks.cache import fit_code_digest
 from runner.config import ConfigError, RunConfig
 from runner.plan import resolve
 from tests.test_methods import _oracle

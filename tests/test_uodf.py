@@ -281,7 +281,7 @@ def test_tiny_neural_fit_runs_and_extracts(fit_seed, torch_threads, measured):
     sphere yet), fit and extract a mesh near it."""
     V, F = _arrays(trimesh.creation.icosphere(subdivisions=3, radius=R))
     fields = ExactFields(V, F)
-    budget = get_budget("tiny", {"iterations": 600})
+    budget = get_budget("tiny", {"steps": 600})
     samples = sample_training_data(V, F, budget.num_samples, np.random.default_rng(0))
     method = get_method("uodf")
     res = fit(method, samples, method.training_targets(fields, samples), budget, seed=fit_seed, device="cpu")

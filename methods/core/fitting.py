@@ -5,7 +5,7 @@ The loop: network ``methods.core.network.make_network(method.input_dim, method.o
 has its own network); AdamW with one
 parameter group per kind of weight (:func:`parameter_groups`): the MLP's weights (lr, weight
 decay) and, for the grid backbone, the feature grid (lr_grid, no weight decay); cosine decay of
-each group's learning rate from its start to its end value over ``iterations`` steps (MLP:
+each group's learning rate from its start to its end value over the budget's ``steps`` (MLP:
 ``lr_t = lr_final + (lr - lr_final) (1 + cos(pi t / T)) / 2``; grid: the same from ``lr_grid`` to
 ``lr_grid_final``), so both reach their end value at the budget's last step; with
 ``warmup_fraction`` > 0 the first ``W = round(warmup_fraction T)`` steps scale that schedule by
@@ -55,7 +55,7 @@ class Budget:
     the default per-tensor loop on a feature grid's values: docs/PERFORMANCE.md, section 8). Off for
     the MLP budgets, whose numbers stay those of the default kernel.
     ``log_every``: the loss is checked for NaN/inf and reported to ``progress`` every so many steps.
-    ``warmup_fraction``: the first ``round(warmup_fraction * iterations)`` steps ramp both learning
+    ``warmup_fraction``: the first ``round(warmup_fraction * steps)`` steps ramp both learning
     rates linearly up to their schedule (:func:`methods.core.schedules.warmup_cosine_lr`); 0 = none (the MLP budgets).
     """
 
@@ -63,7 +63,7 @@ class Budget:
     depth: int = setting(Param(kind=int, help="linear layers of the MLP (the grid backbone's head)", ge=2),
                          override=True)
     width: int = setting(Param(kind=int, help="hidden width of the MLP", ge=1), override=True)
-    iterations: int = setting(Param(kind=int, help="optimizer steps", ge=1), override=True)
+    steps: int = setting(Param(kind=int, help="optimizer steps", ge=1), override=True)
     batch_size: int = setting(Param(kind=int, help="samples per step", ge=1), override=True)
     num_samples: int = setting(Param(kind=int, help="training samples M drawn by the shared sampler", ge=100),
                                override=True)
@@ -111,18 +111,18 @@ class Budget:
 #: *cpu-mlp*: the cpu budget's fit seconds spent on a plain Softplus MLP (5 x 128, no grid; 1,200 steps
 #: of 4,096 from 1M at the paper's lr 1e-3, cosine-decayed): the backbone comparison (``--recipe backbone``).
 ENCODE_FAMILY = register_budget_family("encode", (
-    Budget("paper", depth=9, width=512, iterations=100_000, batch_size=10_000, num_samples=10_000_000,
+    Budget("paper", depth=9, width=512, steps=100_000, batch_size=10_000, num_samples=10_000_000,
            log_every=500),
-    Budget("quick", depth=5, width=128, iterations=1_000, batch_size=2_048, num_samples=200_000,
+    Budget("quick", depth=5, width=128, steps=1_000, batch_size=2_048, num_samples=200_000,
            lr=1e-3, log_every=50),
-    Budget("tiny", depth=4, width=64, iterations=200, batch_size=1_024, num_samples=20_000,
+    Budget("tiny", depth=4, width=64, steps=200, batch_size=1_024, num_samples=20_000,
            lr=3e-3, log_every=20),
-    Budget("cpu", depth=3, width=64, iterations=3_000, batch_size=4_096, num_samples=1_000_000,
+    Budget("cpu", depth=3, width=64, steps=3_000, batch_size=4_096, num_samples=1_000_000,
            lr=1e-2, lr_final=1e-4, log_every=50, backbone="grid", grid_resolutions=(16, 32, 64),
            grid_channels=4, lr_grid=1e-2, lr_grid_final=1e-4, fused_adam=True, warmup_fraction=0.05),
-    Budget("cpu-mlp", depth=5, width=128, iterations=1_200, batch_size=4_096, num_samples=1_000_000,
+    Budget("cpu-mlp", depth=5, width=128, steps=1_200, batch_size=4_096, num_samples=1_000_000,
            lr=1e-3, log_every=50),
-    Budget("tiny-grid", depth=3, width=32, iterations=250, batch_size=2_048, num_samples=100_000,
+    Budget("tiny-grid", depth=3, width=32, steps=250, batch_size=2_048, num_samples=100_000,
            lr=1e-2, lr_final=1e-4, log_every=25, backbone="grid", grid_resolutions=(16, 32, 64),
            grid_channels=4, lr_grid=1e-2, lr_grid_final=1e-4, fused_adam=True, warmup_fraction=0.05),
 ))
@@ -138,13 +138,13 @@ def get_budget(budget: str | Budget, overrides: dict | None = None) -> Budget:
 
 @dataclass
 class FitResult:
-    """model (eval mode), per-step losses (float32, length ``iterations``), wall seconds, steps, final
+    """model (eval mode), per-step losses (float32, length ``steps``), wall seconds, steps, final
     loss (mean of the last ``log_every`` steps)."""
 
     model: torch.nn.Module
     losses: np.ndarray
     seconds: float
-    iterations: int
+    steps: int
     final_loss: float
     samples_per_s: float
 
@@ -230,7 +230,7 @@ def fit(method, samples, targets: dict, budget: str | Budget, seed: int = 0, dev
     seed : initialisation and batch-order seed.
     device : torch device (default: :func:`methods.core.device.get_device`).
     progress : optional ``progress(step=int, loss=float)`` called every ``budget.log_every`` steps.
-    checkpoints, on_checkpoint : after each step number in ``checkpoints`` (1-based, <= iterations)
+    checkpoints, on_checkpoint : after each step number in ``checkpoints`` (1-based, <= steps)
         the fit pauses and calls ``on_checkpoint(step, fit_seconds_so_far, model)`` with the model in
         eval mode (anytime curves). The pause is not counted in the fit's seconds and changes nothing
         about the fit: the weights and losses are those of a fit without checkpoints.
@@ -245,7 +245,7 @@ def fit(method, samples, targets: dict, budget: str | Budget, seed: int = 0, dev
     generator = seeded_generator(seed, device)
     model = make_network(method.input_dim, method.output_dim, **method.network_config(budget)).to(device)
     optimizer = make_optimizer(model, budget)
-    T, B = int(budget.iterations), int(budget.batch_size)
+    T, B = int(budget.steps), int(budget.batch_size)
     warmup = round(budget.warmup_fraction * T)
 
     def step_loss(step: int) -> torch.Tensor:
@@ -259,7 +259,7 @@ def fit(method, samples, targets: dict, budget: str | Budget, seed: int = 0, dev
                        learning_rate=lambda group, step: warmup_cosine_lr(step, T, group["lr_start"], group["lr_end"], warmup),
                        progress=progress, checkpoints=checkpoints, on_checkpoint=on_checkpoint, device=device)
     check_not_constant(model, x_all, f"method '{method.name}', budget '{budget.name}', seed {seed}")
-    return FitResult(model=model, losses=result.losses, seconds=result.seconds, iterations=T,
+    return FitResult(model=model, losses=result.losses, seconds=result.seconds, steps=T,
                      final_loss=result.final_loss, samples_per_s=T * B / max(result.seconds, 1e-9))
 
 
