@@ -167,8 +167,9 @@ def test_a_small_run_report_shows_every_mesh_in_linked_views_in_a_real_browser(s
             page.evaluate(f"document.getElementById('viewer-{toggle}').click()")
 
         if os.environ.get("SALSBENCH_WRITE_FIGURES") == "1":
-            page.evaluate("document.getElementById('viewer-error').click(); document.getElementById('viewer-edges')"
-                          ".click(); salsbenchViewer.renderNow()")
+            page.evaluate("document.querySelector('nav').style.display = 'none'; for (const id of ['viewer-error',"
+                          " 'viewer-edges', 'viewer-reset']) document.getElementById(id).click();"
+                          " salsbenchViewer.renderNow()")
             box = page.evaluate("(() => { const r = document.getElementById('viewer').getBoundingClientRect();"
                                 " return [r.x, r.y + window.scrollY, r.width, r.height]; })()")
             shot = page.send("Page.captureScreenshot", {"format": "png", "captureBeyondViewport": True, "clip": dict(
