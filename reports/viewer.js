@@ -164,7 +164,7 @@
     const surface = gltf ? part(gltf, 'surface') : null;
     if (!surface) {
       view.status = gltf === undefined ? 'none' : 'failed';
-      view.message.textContent = spec.message || (gltf === undefined ? 'no mesh' : 'no surface in the GLB');
+      view.message.textContent = spec.message || (gltf === undefined ? 'no mesh' : 'its GLB could not be decoded');
       view.canvas.style.display = 'none';
       view.message.style.display = '';
       view.cell.dataset.status = view.status;

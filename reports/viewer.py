@@ -79,7 +79,8 @@ class View:
 
 @dataclass
 class ShapeViews:
-    """The views of one shape and the first camera (None without a GT to frame)."""
+    """The views of one shape and the first camera (framing the GT, else the first prediction; None
+    without either)."""
 
     shape: str
     views: list[View]
@@ -152,6 +153,8 @@ def shape_views(shape: str, folder: Path, methods: list[str], caption: Callable[
                 edges = edge_cache[shape, method]
             view.glb, view.faces = _encode(V, F, caps.get(method, MAX_VIEW_FACES), gt, gt_edges, edges, tau, vmax)
             view.file_faces = len(F)
+            if result.camera is None:  # no GT to frame the shape: the first prediction frames it
+                result.camera = vd.initial_camera(V.min(0), V.max(0), up, render.DEFAULT_VIEW)
         except Exception as exc:  # noqa: BLE001
             view.message = f"unreadable: {one_line(exc)}"
     return result

@@ -63,6 +63,7 @@ def test_every_view_has_its_mesh_or_says_why_not(tmp_path):
     meshes = tmp_path / "meshes"
     write_fake_meshes(meshes)  # cube, sphere, cylinder; sdf has no cylinder mesh
     (meshes / "sphere" / "sals.ply").write_text("not a mesh")
+    (meshes / "cylinder" / "gt.ply").unlink()
     data = _data(_viewer(meshes, up="z"))  # a scene's up axis
     by_shape = {s["name"]: {v["name"]: v for v in s["views"]} for s in data["shapes"]}
     assert list(by_shape) == ["cube", "cylinder", "sphere"]
@@ -71,6 +72,8 @@ def test_every_view_has_its_mesh_or_says_why_not(tmp_path):
     assert cube["GT"]["caption"] == "ground truth · 12 faces" and cube["sals"]["caption"] == "metrics of sals on cube"
     assert cube["sals"]["faces"] == cube["sals"]["fileFaces"] == 48  # the subdivided box, drawn in full
     assert by_shape["cylinder"]["sdf"]["message"] == "no mesh" and not by_shape["cylinder"]["sdf"]["glb"]
+    assert by_shape["cylinder"]["GT"]["message"] == "no GT mesh" and by_shape["cylinder"]["sals"]["glb"]
+    assert data["shapes"][1]["camera"]["target"] == pytest.approx([0, 0, 0], abs=0.01)  # framed by sals' mesh
     assert by_shape["sphere"]["sals"]["message"].startswith("unreadable")
     assert data["shapes"][0]["camera"]["up"] == [0.0, 0.0, 1.0]  # the views orbit about z, as the thumbnails stand
 
