@@ -13,7 +13,7 @@ One :class:`numpy.random.SeedSequence` per (shape, seed)::
   (child 0: GT samples, child 1: prediction samples, child 2: the IoU's points), so every
   prediction of a shape and the floor row are scored against the same GT samples.
 * ``calibration`` -> the generator of a method's calibration after its fit
-  (:meth:`methods.base.Method.calibrate`, e.g. SALS's per-shape o threshold). Spawned fourth, so
+  (:meth:`methods.base.FieldMethod.calibrate`, e.g. SALS's per-shape o threshold). Spawned fourth, so
   the three streams above are those of a three-way spawn.
 
 A network trained once across shapes (the learned point-cloud methods, the UNDC networks) draws

@@ -70,16 +70,17 @@ class Extraction:
 
 
 class Method:
-    """Base class of a representation. Subclasses set the class attributes and implement the hooks.
+    """What every method of every task has: a name, parameters, a budget family, availability and a
+    training record. A method subclasses the base of its task, which adds that task's hooks:
+    :class:`FieldMethod` (``encode``: a field fitted per shape, extracted from a grid) or
+    :class:`PointCloudMethod` (``reconstruct``: a mesh from a raw point cloud).
 
     Class attributes
     ----------------
-    name : registry name (``bof``, ``sdf``, ``udf``, ``sals``, ...).
+    name : registry name (``bof``, ``sdf``, ``udf``, ``sals``, ``poisson``, ...).
     description : one line for ``--help`` and reports.
-    input_kind : ``'points'`` (network input x, 3 values) or ``'segments'`` (u, v: 6 values).
-    output_dim : number of network outputs.
     extractor : name of the extraction algorithm, for tables (e.g. ``'marching cubes'``, ``'E-DC'``).
-    parameters : the extractor parameters, ``{name: Param(default, help, bounds...)}``; users override
+    parameters : the method's parameters, ``{name: Param(default, help, bounds...)}``; users override
         any of them (``--method-param NAME.PARAM=VALUE``), parsed and checked by :class:`Param`.
 
     How tables and plots show the method (its order, colour and caption note) is registry metadata
@@ -88,14 +89,15 @@ class Method:
 
     name: ClassVar[str] = ""
     description: ClassVar[str] = ""
+    #: What the method's network takes, for a method with one: ``'points'`` (x, 3 values) or
+    #: ``'segments'`` (u, v: 6 values).
     input_kind: ClassVar[str] = "points"
     output_dim: ClassVar[int] = 1
     extractor: ClassVar[str] = ""
     parameters: ClassVar[dict[str, Param]] = {}
-    #: The benchmark task the method serves: ``'encode'`` (a field fitted per shape from the mesh's
-    #: exact fields: this class) or ``'reconstruct'`` (a mesh from a raw point cloud:
-    #: :class:`PointCloudMethod`).
-    task: ClassVar[str] = "encode"
+    #: The benchmark task the method serves: ``'encode'`` (:class:`FieldMethod`), ``'reconstruct'``
+    #: (:class:`PointCloudMethod`) or ``'score'`` (meshes made elsewhere).
+    task: ClassVar[str] = ""
     #: Whether the method needs a network trained across shapes (:class:`LearnedPointCloudMethod`).
     learned: ClassVar[bool] = False
     #: The parts of the grid field an error decomposition may take from the exact field instead of
@@ -113,7 +115,7 @@ class Method:
     #: The budget family whose records the method's fit or training reads (:class:`BudgetFamily`;
     #: ``'encode'``: the per-shape fit of :mod:`methods.core.fitting`); None: the method fits and
     #: trains nothing, so no budget applies to it.
-    budget_family: ClassVar[str | None] = "encode"
+    budget_family: ClassVar[str | None] = None
 
     def __init_subclass__(cls, **kwargs: Any):
         super().__init_subclass__(**kwargs)
@@ -144,6 +146,31 @@ class Method:
             return None
         mine = {k: v for k, v in (overrides or {}).items() if k in cls.budget_fields()}
         return budget_family(cls.budget_family).get(name, mine)
+
+    @classmethod
+    def unavailable(cls) -> str | None:
+        """Why the method cannot run on this machine (one line, e.g. data it reads is absent), or
+        None. Such a method is left out of the default method list and refused when named."""
+        return None
+
+    def training_record(self):
+        """What the trained weights this method reads were trained on
+        (:class:`methods.core.training_record.TrainingRecord`), so each result row can say whether
+        its shape was seen in training; None for a method that reads no trained weights. A learned
+        point-cloud method's record comes from its training set (the run layer knows it)."""
+        return None
+
+    def describe(self) -> dict[str, Any]:
+        return {"name": self.name, "extractor": self.extractor, "input": self.input_kind, "params": dict(self.params)}
+
+
+class FieldMethod(Method):
+    """A method of the ``encode`` task: a network fitted to one shape from its exact fields (or the
+    exact field itself, oracle mode), queried on a grid and extracted to a mesh. Subclasses set
+    ``input_kind``, ``output_dim`` and ``extractor`` and implement the hooks below."""
+
+    task: ClassVar[str] = "encode"
+    budget_family: ClassVar[str | None] = "encode"
 
     @property
     def input_dim(self) -> int:
@@ -226,27 +253,11 @@ class Method:
         """Errors of the fitted field's components against the exact ones (metric columns)."""
         return {}
 
-    @classmethod
-    def unavailable(cls) -> str | None:
-        """Why the method cannot run on this machine (one line, e.g. data it reads is absent), or
-        None. Such a method is left out of the default method list and refused when named."""
-        return None
-
-    def training_record(self):
-        """What the trained weights this method reads were trained on
-        (:class:`methods.core.training_record.TrainingRecord`), so each result row can say whether
-        its shape was seen in training; None for a method that reads no trained weights. A learned
-        point-cloud method's record comes from its training set (the run layer knows it)."""
-        return None
-
     def extraction_data_digest(self) -> str:
         """A digest of the data files (not code) the extraction reads, e.g. trained weights, or ''
         when it reads none: part of the key of its cached meshes, so a changed file never serves a
         mesh extracted with the old one."""
         return ""
-
-    def describe(self) -> dict[str, Any]:
-        return {"name": self.name, "extractor": self.extractor, "input": self.input_kind, "params": dict(self.params)}
 
 
 class PointCloudMethod(Method):
@@ -333,9 +344,11 @@ class LearnedPointCloudMethod(PointCloudMethod):
         raise NotImplementedError
 
     def training_targets(self, fields, samples) -> dict[str, np.ndarray]:
+        """Labels for every training sample from the exact fields of a training shape."""
         raise NotImplementedError
 
     def loss(self, prediction, targets: dict):
+        """Scalar torch loss of a training batch (``prediction`` the network's outputs)."""
         raise NotImplementedError
 
     def reconstruct(self, points: np.ndarray, N: int, device=None, seed: int = 0, model=None) -> Extraction:

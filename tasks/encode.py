@@ -8,7 +8,7 @@ exact fields); then ``extract`` (``method.extract``) and ``metrics``. With ``--d
 field's error is split by component (``decompose``); with checkpoints the network is also scored
 part-way through its fit (``checkpoints``, not counted in ``fit``). Randomness comes from
 :func:`benchmark.seeding.job_streams` of (shape content hash, seed). Nothing here branches on a
-method's name: everything method-specific goes through :class:`methods.base.Method`.
+method's name: everything method-specific goes through :class:`methods.base.FieldMethod`.
 """
 
 from __future__ import annotations
@@ -110,7 +110,7 @@ def _grid_field(job: _Encode):
 
 
 def _calibrate(job: _Encode, fields, model) -> dict:
-    """The method's calibration of its fitted ``model`` (:meth:`methods.base.Method.calibrate`)
+    """The method's calibration of its fitted ``model`` (:meth:`methods.base.FieldMethod.calibrate`)
     with the job's calibration stream."""
     from benchmark.seeding import job_streams
 
@@ -121,7 +121,7 @@ def _calibrate(job: _Encode, fields, model) -> dict:
 
 def _decompose(job: _Encode, fields, model, fitted) -> None:
     """The fitted field's error split by component: the component errors as metrics of the job, and
-    per set of exact components (:meth:`methods.base.Method.decompositions`) the hybrid field
+    per set of exact components (:meth:`methods.base.FieldMethod.decompositions`) the hybrid field
     extracted and scored with the job's own metric stream (a row of ``result.components``)."""
     ctx, spec, method = job.ctx, job.spec, job.method
     ctx.report("decomposing")

@@ -7,13 +7,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from methods.base import Method, register_method
+from methods.base import FieldMethod, register_method
 from benchmark.params import Param
 
 PLUGIN = "tests.fake_methods:register_fakes"
 
 
-class _FakeGridMethod(Method):
+class _FakeGridMethod(FieldMethod):
     input_kind = "points"
     output_dim = 1
     extractor = "marching cubes"

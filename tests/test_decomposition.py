@@ -1,4 +1,4 @@
-"""The error decomposition of fitted fields (methods.base.Method.hybrid_grid, component_errors and
+"""The error decomposition of fitted fields (methods.base.FieldMethod.hybrid_grid, component_errors and
 --decompose end to end): hand-worked hybrids, and every exact component reproducing the oracle."""
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from methods.base import Method
+from methods.base import FieldMethod
 from methods.core.fitting import (BUDGETS, Budget, check_not_constant, fit, get_budget, model_from_bytes,
                                   model_to_bytes, parameter_groups)
 from methods.core.schedules import cosine_lr
@@ -23,7 +23,7 @@ GRID_TOY = Budget("toy-grid", depth=3, width=32, steps=200, batch_size=1024, num
                   lr_grid=1e-2, lr_grid_final=1e-4, fused_adam=True)
 
 
-class SphereSDF(Method):
+class SphereSDF(FieldMethod):
     """A method defined here (not registered): signed distance to the sphere |x| = 0.5."""
 
     name = "toy-sdf"

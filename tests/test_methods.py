@@ -10,7 +10,7 @@ from benchmark.fields import ExactFields
 from benchmark.metrics import evaluate
 from benchmark.sampler import sample_training_data
 from benchmark.timing import StageTimer, stage
-from methods.base import METHODS, Method, available_methods, get_method, presentation
+from methods.base import METHODS, FieldMethod, available_methods, get_method, presentation
 from methods.core.fitting import BUDGETS, fit
 from benchmark.params import Param
 from methods.fields.sals import PAPER_O_THRESHOLD, edge_draws
@@ -65,7 +65,7 @@ def test_parameters_are_typed_and_checked():
 
 
 def test_a_fifth_method_defined_here_is_found():
-    class Constant(Method):
+    class Constant(FieldMethod):
         name = "test-constant"
         parameters = {"value": Param(1.0, "the constant")}
 

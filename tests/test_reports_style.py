@@ -2,15 +2,15 @@
 
 from __future__ import annotations
 
-from methods.base import Method, registered_method
+from methods.base import FieldMethod, registered_method
 from reports.style import PALETTE, method_colors, method_order
 
 
-class Late(Method):
+class Late(FieldMethod):
     name = "toy-late"
 
 
-class Early(Method):
+class Early(FieldMethod):
     name = "toy-early"
 
 

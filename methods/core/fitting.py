@@ -223,7 +223,7 @@ def fit(method, samples, targets: dict, budget: str | Budget, seed: int = 0, dev
 
     Parameters
     ----------
-    method : a :class:`methods.base.Method` (gives input/output sizes and the loss).
+    method : a :class:`methods.base.FieldMethod` (gives input/output sizes and the loss).
     samples : :class:`benchmark.sampler.Samples` (or anything ``method.network_inputs`` accepts).
     targets : dict of (M, ...) arrays from ``method.training_targets``.
     budget : a :class:`Budget` or its name in :data:`BUDGETS`.

@@ -18,12 +18,12 @@ import torch.nn.functional as F
 
 from benchmark.params import Param
 from methods.core import query
-from methods.base import Extraction, Method, register_method, signed_hybrid, wrong_side_points
+from methods.base import Extraction, FieldMethod, register_method, signed_hybrid, wrong_side_points
 from methods.extractors.marching_cubes import marching_cubes_grid
 
 
 @register_method(order=10, color="#29a37a")
-class BOFMethod(Method):
+class BOFMethod(FieldMethod):
     name = "bof"
     description = "neural binary occupancy field + marching cubes at probability 0.5"
     input_kind = "points"

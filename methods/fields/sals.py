@@ -41,7 +41,7 @@ from benchmark.grid import edge_inputs, spacing
 from benchmark.params import Param
 from benchmark.timing import stage
 from methods.core import query
-from methods.base import Extraction, Method, median_angle_deg, register_method
+from methods.base import Extraction, FieldMethod, median_angle_deg, register_method
 from methods.core.segment_field import nearer_endpoint_normals, segment_loss, segment_targets
 from methods.extractors.edc import edge_dual_contouring
 
@@ -124,7 +124,7 @@ def _positions(ids: np.ndarray, table: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 
 @register_method(order=40, color="#e4572e")
-class SALSMethod(Method):
+class SALSMethod(FieldMethod):
     name = "sals"
     description = "neural line segment field (SALS) + edge-based dual contouring (E-DC)"
     input_kind = "segments"

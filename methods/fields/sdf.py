@@ -16,7 +16,7 @@ import numpy as np
 from benchmark.grid import spacing
 from benchmark.params import Param
 from methods.core import query
-from methods.base import Extraction, Method, register_method, signed_hybrid, wrong_side_points
+from methods.base import Extraction, FieldMethod, register_method, signed_hybrid, wrong_side_points
 from methods.extractors.marching_cubes import marching_cubes_grid
 
 #: Loss clamp of the signed distance, canonical units.
@@ -24,7 +24,7 @@ DISTANCE_CLAMP = 0.1
 
 
 @register_method(order=20, color="#3a7fc1")
-class SDFMethod(Method):
+class SDFMethod(FieldMethod):
     name = "sdf"
     description = "neural signed distance field + marching cubes at level 0"
     input_kind = "points"

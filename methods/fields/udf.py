@@ -26,7 +26,7 @@ from benchmark.grid import point_inputs, spacing
 from benchmark.params import Param
 from benchmark.timing import stage
 from methods.core import query
-from methods.base import Extraction, Method, median_angle_deg, register_method
+from methods.base import Extraction, FieldMethod, median_angle_deg, register_method
 from methods.core.network import value_and_input_gradient
 from methods.extractors.meshudf import meshudf_marching_cubes
 
@@ -37,7 +37,7 @@ GRAD_WEIGHT = 0.1
 
 
 @register_method(order=30, color="#f2a541")
-class UDFMethod(Method):
+class UDFMethod(FieldMethod):
     name = "udf"
     description = "neural unsigned distance field + MeshUDF-style extraction"
     input_kind = "points"

@@ -54,7 +54,7 @@ from benchmark.grid import axis_coords, point_inputs, spacing
 from benchmark.params import Param
 from benchmark.timing import stage
 from methods.core import query
-from methods.base import Extraction, Method, register_method
+from methods.base import Extraction, FieldMethod, register_method
 from methods.core.network import value_and_input_gradients
 from methods.extractors.mesh_ops import keep_vertices
 from methods.extractors.meshlab import poisson_depth
@@ -250,7 +250,7 @@ def trim_far_vertices(V: np.ndarray, F: np.ndarray, points: np.ndarray, limit: f
 @register_method(order=45, color="#e377c2",
                  note="uodf fits a distance and a mask network per axis, as its authors do, each on the run's "
                       "backbone (theirs: an MLP with a positional encoding of the line).")
-class UODFMethod(Method):
+class UODFMethod(FieldMethod):
     name = "uodf"
     description = ("unsigned orthogonal distance fields, the authors' fit (a distance and a mask network per axis) "
                    "+ UODF point extraction and screened Poisson")
