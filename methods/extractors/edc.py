@@ -52,15 +52,16 @@ __all__ = [
     "intersected_edges",
     "qef_solve",
     "DEFAULT_QEF_CUTOFF",
-    "DEFAULT_HIT_THRESHOLD",
+    "PAPER_HIT_THRESHOLD",
     "FACE_RULES",
     "FAN_PLANE_TOLERANCE",
 ]
 
 #: Eigenvalues of A^T A below this are dropped in the QEF pseudo-inverse (*paper*, unit normals).
 DEFAULT_QEF_CUTOFF = 0.1
-#: An edge is intersected when the predicted occupancy o_hat exceeds this (*paper*).
-DEFAULT_HIT_THRESHOLD = 0.1
+#: The paper's hit threshold: an edge is intersected when the predicted occupancy o_hat exceeds it
+#: (each method names its own threshold, e.g. ``sals``' ``o_threshold``).
+PAPER_HIT_THRESHOLD = 0.1
 #: The face rules of :func:`edge_dual_contouring` (``'fan4'`` is the paper's).
 FACE_RULES = ("fan4", "quad2", "fan4-adaptive")
 #: ``'fan4-adaptive'`` keeps the fan of an edge when its edge point lies within this many grid
@@ -70,7 +71,7 @@ FAN_PLANE_TOLERANCE = 0.05
 # ----------------------------------------------------------------------------------------------
 # step 1 helper and step 2
 # ----------------------------------------------------------------------------------------------
-def intersected_edges(o_hat: np.ndarray, threshold: float = DEFAULT_HIT_THRESHOLD) -> np.ndarray:
+def intersected_edges(o_hat: np.ndarray, threshold: float = PAPER_HIT_THRESHOLD) -> np.ndarray:
     """Flat ids (int64, increasing) of the edges with predicted occupancy ``o_hat > threshold``."""
     return np.flatnonzero(np.asarray(o_hat) > threshold)
 

@@ -43,10 +43,10 @@ from benchmark.timing import stage
 from methods.core import query
 from methods.base import Extraction, FieldMethod, median_angle_deg, register_method
 from methods.core.segment_field import nearer_endpoint_normals, segment_loss, segment_targets
-from methods.extractors.edc import edge_dual_contouring
+from methods.extractors.edc import PAPER_HIT_THRESHOLD, edge_dual_contouring
 
 #: The paper's hit threshold of o_hat.
-PAPER_O_THRESHOLD = 0.1
+PAPER_O_THRESHOLD = PAPER_HIT_THRESHOLD
 #: The default hit threshold: o_hat's own decision point (BCE).
 DEFAULT_O_THRESHOLD = 0.5
 #: Default length of the optional grid-edge-like training segments: a 128^3 grid edge, 2 / 127.

@@ -45,6 +45,8 @@ import torch
 import torch.nn.functional as F
 
 from benchmark.fields import ExactFields
+from benchmark.params import Param, check_fields, setting
+from methods.core.budgets import register_budget_family
 from methods.extractors import undc
 from methods.core.device import seeded_generator
 from methods.pointcloud.training_set import DEFAULT_TRAINING_SEED, training_set_digest, training_shapes
@@ -59,7 +61,7 @@ PERMUTATIONS = ((0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0)
 
 @dataclass(frozen=True)
 class UNDCBudget:
-    """How much UNDC training: shapes, grids, crops and steps.
+    """How much UNDC training: shapes, grids, crops and steps (the budget family ``undc``).
 
     name : the budget's name.
     shapes : built-in training parts (indices 0 .. shapes - 1 at the training seed).
@@ -73,18 +75,21 @@ class UNDCBudget:
     log_every : loss checks / progress reports every so many steps.
     """
 
-    name: str
-    shapes: int
-    thingi: bool
-    grids: tuple[int, ...]
-    crop: int
-    batch: int
-    bool_steps: int
-    float_steps: int
-    lr: float
-    lr_half_life: int
-    channels: int
-    log_every: int
+    name: str = setting(Param(kind=str, help="budget name"))
+    shapes: int = setting(Param(kind=int, help="built-in training parts", ge=1))
+    thingi: bool = setting(Param(kind=bool, help="also the Thingi10K meshes of the training folder"))
+    grids: tuple[int, ...] = setting(Param(kind=tuple, item=int, help="grid points per axis of each labelling", ge=9))
+    crop: int = setting(Param(kind=int, help="output grid points per side of a training crop", ge=1))
+    batch: int = setting(Param(kind=int, help="crops per step", ge=1))
+    bool_steps: int = setting(Param(kind=int, help="Adam steps of the bool network", ge=1))
+    float_steps: int = setting(Param(kind=int, help="Adam steps of the float network", ge=1))
+    lr: float = setting(Param(kind=float, help="initial learning rate", gt=0))
+    lr_half_life: int = setting(Param(kind=int, help="steps per halving of the learning rate (0: constant)", ge=0))
+    channels: int = setting(Param(kind=int, help="convolution channels of both networks", ge=1))
+    log_every: int = setting(Param(kind=int, help="steps between loss checks and progress reports", ge=1))
+
+    def __post_init__(self):
+        check_fields(self, f"UNDC budget '{self.name}'")
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -94,22 +99,17 @@ class UNDCBudget:
 #: docs/PROTOCOL.md, "UNDC on the UDF") (1,200 Adam steps each of 2 crops of 16^3 output points, lr 1e-3
 #: halved every 400 steps: NDC's 1e-4 is for millions of steps), after labelling 60 parts and the
 #: Thingi10K meshes at 33^3 and 65^3.
-UNDC_BUDGETS: dict[str, UNDCBudget] = {
-    "tiny": UNDCBudget("tiny", shapes=2, thingi=False, grids=(33,), crop=8, batch=2, bool_steps=30,
-                       float_steps=30, lr=1e-3, lr_half_life=0, channels=8, log_every=5),
-    "cpu": UNDCBudget("cpu", shapes=60, thingi=True, grids=(33, 65), crop=16, batch=2, bool_steps=1200,
-                      float_steps=1200, lr=1e-3, lr_half_life=400, channels=undc.DEFAULT_CHANNELS,
-                      log_every=100),
-}
+UNDC_FAMILY = register_budget_family("undc", (
+    UNDCBudget("tiny", shapes=2, thingi=False, grids=(33,), crop=8, batch=2, bool_steps=30,
+               float_steps=30, lr=1e-3, lr_half_life=0, channels=8, log_every=5),
+    UNDCBudget("cpu", shapes=60, thingi=True, grids=(33, 65), crop=16, batch=2, bool_steps=1200,
+               float_steps=1200, lr=1e-3, lr_half_life=400, channels=undc.DEFAULT_CHANNELS, log_every=100),
+))
 
 
 def get_undc_budget(budget: str | UNDCBudget) -> UNDCBudget:
-    """A budget by name in :data:`UNDC_BUDGETS`, or the budget itself."""
-    if isinstance(budget, UNDCBudget):
-        return budget
-    if budget not in UNDC_BUDGETS:
-        raise ValueError(f"unknown UNDC budget '{budget}' (known: {', '.join(UNDC_BUDGETS)})")
-    return UNDC_BUDGETS[budget]
+    """A budget of the ``undc`` family by name (unknown names list the known ones), or the budget itself."""
+    return UNDC_FAMILY.get(budget)
 
 
 def undc_training_shapes(budget: str | UNDCBudget, seed: int = DEFAULT_TRAINING_SEED,
@@ -307,7 +307,7 @@ def train(shapes: Sequence, budget: str | UNDCBudget, seed: int = 0,
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m methods.training.undc",
                                      description="Train UNDC's bool and float networks and write the weights file.")
-    parser.add_argument("--budget", default="cpu", choices=sorted(UNDC_BUDGETS))
+    parser.add_argument("--budget", default="cpu", choices=UNDC_FAMILY.names())
     parser.add_argument("--out", type=Path, default=undc.DEFAULT_WEIGHTS, help="weights file to write")
     parser.add_argument("--seed", type=int, default=0, help="initialisation and crop seed")
     parser.add_argument("--thingi-dir", type=Path, default=DEFAULT_THINGI_DIR, help="Thingi10K training meshes")
