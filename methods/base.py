@@ -300,7 +300,7 @@ class LearnedPointCloudMethod(PointCloudMethod):
     """A learned method of the ``reconstruct`` task: a network trained once across many shapes (the
     run layer caches it per training set, method, budget and code), then applied to a test cloud.
 
-    :class:`methods.pointcloud.knn.training.KNNTrainedMethod` trains the shared K-NN local network
+    :class:`methods.pointcloud.knn.method.KNNTrainedMethod` trains the shared K-NN local network
     (:mod:`methods.pointcloud.knn.network`). Its class attributes: ``network_kind`` ``'segment'`` (the network takes a
     segment (u, v) and the K nearest input points of its midpoint) or ``'point'`` (a point x and its K
     nearest input points); ``output_dim`` its outputs. Training samples and labels come from the

@@ -1,5 +1,5 @@
 """The storage and inference preamble shared by the learned point-cloud methods with their own
-architecture (POCO, GIFS, GeoUDF), as :class:`methods.pointcloud.knn.training.KNNTrainedMethod` is for the
+architecture (POCO, GIFS, GeoUDF), as :class:`methods.pointcloud.knn.method.KNNTrainedMethod` is for the
 methods on the shared K-NN network."""
 
 from __future__ import annotations

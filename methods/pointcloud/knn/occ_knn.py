@@ -27,7 +27,7 @@ import torch.nn.functional as F
 from benchmark.grid import spacing
 from benchmark.timing import stage
 from methods.base import Extraction, register_method
-from methods.pointcloud.knn.training import KNNTrainedMethod
+from methods.pointcloud.knn.method import KNNTrainedMethod
 from methods.pointcloud.knn.query import evaluate_knn, knn_k
 from methods.pointcloud.neighbourhoods import band_points
 from methods.extractors.marching_cubes import far_occupancy, marching_cubes_grid

@@ -22,7 +22,7 @@ from methods.base import Extraction, register_method
 from methods.core.segment_field import nearer_endpoint_normals, segment_loss, segment_targets
 from methods.extractors.edc import edge_dual_contouring
 from methods.pointcloud.knn.query import evaluate_knn, knn_k
-from methods.pointcloud.knn.training import KNNTrainedMethod
+from methods.pointcloud.knn.method import KNNTrainedMethod
 from methods.pointcloud.neighbourhoods import band_edges
 
 

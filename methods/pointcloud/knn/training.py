@@ -40,7 +40,6 @@ import torch
 from benchmark.params import Param, check_fields, setting
 from benchmark.seeding import training_streams
 from datasets import Shape
-from methods.base import LearnedPointCloudMethod
 from methods.core.budgets import budget_values, register_budget_family
 from methods.core.device import get_device, seeded_generator
 from methods.core.weights import weights_from_bytes, weights_to_bytes
@@ -49,7 +48,7 @@ from methods.pointcloud.neighbourhoods import knn_neighbourhoods, segment_neighb
 from methods.pointcloud.training_set import TrainingPools, TrainingSet, TrainResult, train_steps
 
 __all__ = ["KNNBudget", "KNN_FAMILY", "KNN_BUDGETS", "get_knn_budget", "knn_batch", "train", "knn_model_to_bytes",
-           "knn_model_from_bytes", "KNNTrainedMethod"]
+           "knn_model_from_bytes"]
 
 
 @dataclass(frozen=True)
@@ -218,20 +217,3 @@ def knn_model_from_bytes(data: bytes, device=None, method_name: str | None = Non
     model, blob = weights_from_bytes(data, make_knn_network, device, method_name, what="K-NN weights")
     model.knn_k = int(blob["budget"]["k"])
     return model, float(blob["final_loss"])
-
-
-class KNNTrainedMethod(LearnedPointCloudMethod):
-    """A learned reconstruction method whose network is the shared K-NN local network, trained by
-    :func:`train` (``network_kind``, ``output_dim``, ``training_targets``, ``loss``)."""
-
-    budget_family = "knn"
-    training_modules = ("methods.pointcloud.knn.training",)
-
-    def train_network(self, shapes, budget, seed, device=None, progress=None) -> TrainResult:
-        return train(self, shapes, budget, seed=seed, device=device, progress=progress)
-
-    def network_to_bytes(self, trained: TrainResult, budget) -> bytes:
-        return knn_model_to_bytes(trained.model, budget, self.name, trained.final_loss)
-
-    def network_from_bytes(self, data: bytes, device=None):
-        return knn_model_from_bytes(data, device=device, method_name=self.name)[0]

@@ -19,7 +19,7 @@ from benchmark.timing import stage
 from methods.base import Extraction, register_method
 from methods.extractors.meshudf import meshudf_marching_cubes
 from methods.pointcloud.knn.query import evaluate_knn, knn_k
-from methods.pointcloud.knn.training import KNNTrainedMethod
+from methods.pointcloud.knn.method import KNNTrainedMethod
 from methods.pointcloud.neighbourhoods import band_points
 
 #: Training targets and predictions are compared clamped at this distance (canonical units).
