@@ -3,7 +3,7 @@
 Shape: an analytic CAD-like "heat sink" (a base plate with fins, minus a cylindrical hole), with
 its SDF, UDF, UDF gradient and exact-ish grid-edge hits (bisection of the SDF along every edge
 whose endpoints change sign, normals from central differences of the SDF) on the grid of
-benchmark.grid. Compares, at N = 64 and 128:
+foundation.grid. Compares, at N = 64 and 128:
 
 * scikit-image ``marching_cubes`` on the SDF grid (the reference),
 * oracle E-DC (:func:`methods.extractors.edc.edge_dual_contouring`, steps 2, 4, 5; the field is given),
@@ -33,8 +33,8 @@ import numpy as np
 import pytest
 from skimage.measure import marching_cubes
 
-from benchmark.grid import edge_endpoint_values, edge_endpoints, grid_points, spacing
-from benchmark.timing import StageTimer
+from foundation.grid import edge_endpoint_values, edge_endpoints, grid_points, spacing
+from foundation.timing import StageTimer
 from methods.extractors.edc import edge_dual_contouring
 from methods.extractors.dcudf import authors_r, dcudf
 from methods.extractors.dualmesh import dualmesh_udf

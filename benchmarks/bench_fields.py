@@ -1,4 +1,4 @@
-"""Speed of the exact fields (benchmark/fields.py) on the biggest ABC mesh in ../shared/data/abc.
+"""Speed of the exact fields (foundation/fields.py) on the biggest ABC mesh in ../shared/data/abc.
 
 Run:  .venv/bin/pytest benchmarks/bench_fields.py -o python_files='bench_*.py' --benchmark-enable -q
 Target: the four 128^3 grid fields (occupancy, sdf, udf + gradient, grid-edge LSF) of a ~40k-face
@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmark.fields import ExactFields
-from benchmark.grid import edge_endpoints
+from foundation.fields import ExactFields
+from foundation.grid import edge_endpoints
 from datasets.io import load_shape
 from tests.conftest import SHARED_DATA
 

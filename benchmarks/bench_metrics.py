@@ -1,4 +1,4 @@
-"""Speed of benchmark.metrics.evaluate (docs/PROTOCOL.md, "Metrics") on a real ABC mesh vs a perturbed copy.
+"""Speed of foundation.metrics.evaluate (docs/PROTOCOL.md, "Metrics") on a real ABC mesh vs a perturbed copy.
 
 Goal: all metrics for one pair at n = 1,000,000 in <= 15 s on 2 cores.
 
@@ -30,7 +30,7 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from benchmark.metrics import distance_distribution, evaluate, self_intersections, volumetric_iou  # noqa: E402
+from foundation.metrics import distance_distribution, evaluate, self_intersections, volumetric_iou  # noqa: E402
 from datasets.io import load_shape  # noqa: E402
 from tests.conftest import SHARED_DATA  # noqa: E402
 

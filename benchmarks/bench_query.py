@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 import torch
 
-from benchmark.grid import edge_inputs
+from foundation.grid import edge_inputs
 from methods.core import query
 from methods.core.fitting import BUDGETS
 from methods.core.network import make_network
@@ -137,8 +137,8 @@ def main(N=128, threads=None):
 def fitted_query_ratio(path, N: int = 128, budget: str = "cpu", rounds: int = 3) -> dict:
     """Seconds of SALS's ``neural_grid`` (edge query + normals) and SDF's (point query) on networks
     fitted to the mesh at ``path`` (seed 0), one torch thread, medians of ``rounds`` interleaved."""
-    from benchmark.fields import ExactFields
-    from benchmark.sampler import sample_training_data
+    from foundation.fields import ExactFields
+    from foundation.sampler import sample_training_data
     from datasets.io import load_shape
     from methods.base import get_method
     from methods.core.fitting import fit, get_budget

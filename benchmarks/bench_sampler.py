@@ -5,8 +5,8 @@
 
 import pytest
 
-from benchmark.sampler import sample_training_data
-from benchmark.seeding import job_streams
+from foundation.sampler import sample_training_data
+from foundation.seeding import job_streams
 from datasets import get_dataset
 
 

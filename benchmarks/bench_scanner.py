@@ -1,4 +1,4 @@
-"""Speed of the virtual range scanner (benchmark/scanner.py) against the area-uniform sampler, 40k points.
+"""Speed of the virtual range scanner (foundation/scanner.py) against the area-uniform sampler, 40k points.
 
     OMP_NUM_THREADS=1 taskset -c 0 .venv/bin/python -m pytest benchmarks/bench_scanner.py \
         -o python_files='bench_*.py' --benchmark-enable
@@ -14,9 +14,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmark.corruptions import input_cloud
-from benchmark.scanner import scan_cloud
-from benchmark.surface import sample_surface
+from foundation.corruptions import input_cloud
+from foundation.scanner import scan_cloud
+from foundation.surface import sample_surface
 from datasets.io import load_shape
 from tests.conftest import SHARED_DATA
 

@@ -6,7 +6,7 @@ manifold3d. Like ABC models they have flat faces, sharp edges and thin parts. Ea
 to the canonical frame and refined by manifold's ``refine_to_length(REFINE_LENGTH)`` (edges at most
 0.2 long, so 2.5k-16k faces a part, flat faces stay exactly flat). Everything is deterministic: the
 dimensions of shape ``i`` are drawn from ``numpy.random.default_rng([seed, i, part])``, so the same
-seed gives bit-identical arrays (see :func:`benchmark.storage.mesh_hash`) and shape ``i`` does not depend
+seed gives bit-identical arrays (see :func:`foundation.storage.mesh_hash`) and shape ``i`` does not depend
 on ``count``.
 
 Variants (``Shape.kind``):

@@ -7,7 +7,7 @@ positions, which is what its indexed form would have been), and every failure is
 :class:`MeshError` whose message is one line naming the file and the problem (what is wrong with
 the file, never a bare exception of a parser); no numpy warning reaches the user.
 
-Degeneracy is judged scale-free (:func:`benchmark.surface.relative_area`), as in the canonical
+Degeneracy is judged scale-free (:func:`foundation.surface.relative_area`), as in the canonical
 frame: a valid mesh at 1e-300 or 1e300 loads like the same mesh at 1.
 """
 
@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from benchmark.storage import mesh_hash
-from benchmark.surface import MIN_RELATIVE_AREA, relative_area
+from foundation.storage import mesh_hash
+from foundation.surface import MIN_RELATIVE_AREA, relative_area
 from datasets.formats import (
     MeshError,
     ascii_stl_vertex_count,
@@ -145,7 +145,7 @@ def validate_arrays(vertices: np.ndarray, faces: np.ndarray, what: str) -> tuple
 
     Refused: no vertices, no faces, non-triangles, indices out of range, NaN/inf coordinates, all
     vertices at one point, and faces that lie on a line or a point (total area below
-    :data:`~benchmark.surface.MIN_RELATIVE_AREA` of the largest bounding-box side squared: the
+    :data:`~foundation.surface.MIN_RELATIVE_AREA` of the largest bounding-box side squared: the
     test of the canonical frame, so the mesh's scale does not matter).
     """
     vertices = np.asarray(vertices, dtype=np.float64)

@@ -152,7 +152,7 @@ def write_point_cloud(path: str | Path, points: np.ndarray, sensors: np.ndarray 
     """Write a cloud file that :func:`read_scan` reads back bit for bit: ``.ply`` (binary, float64
     ``x y z`` and, with sensors, ``sx sy sz``), ``.npz`` (``points`` and ``sensor_position``),
     ``.npy`` or ``.xyz`` (points only: ValueError with sensors). Written atomically."""
-    from benchmark.storage import atomic_write
+    from foundation.storage import atomic_write
 
     path = Path(path)
     points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)

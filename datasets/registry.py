@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmark.registry import Registry
+from foundation.registry import Registry
 from datasets.io import MeshError, Shape
 
 #: The dataset a run uses when none is named.

@@ -14,12 +14,12 @@ street along +x from x = 0 to ``length``; one function per step:
    grids of cells at most ``edge`` x ``edge`` (two triangles each); gable ends and cars are
    subdivided until no edge is longer than ``edge`` (:data:`GT_EDGE` = 0.25 m).
 3. :func:`lidar_scan`: the :class:`Lidar` (after the Velodyne HDL-32E) makes one revolution at
-   each pose of :meth:`Lidar.poses`, its rays cast by :func:`benchmark.scanner.cast_rays`; returns
+   each pose of :meth:`Lidar.poses`, its rays cast by :func:`foundation.scanner.cast_rays`; returns
    beyond the maximum range or more grazing than the dropout angle are lost; Gaussian range noise
    moves each point along its beam.
 4. :func:`visible_faces`, the GT: the faces of the scene mesh the sensor could see. A face is
    visible when a ray of the scan hit it, or when its centroid ``c`` is seen from some pose ``s``:
-   the first hit of the ray from ``s`` towards ``c`` (:func:`~benchmark.scanner.cast_rays`, grazing
+   the first hit of the ray from ``s`` towards ``c`` (:func:`~foundation.scanner.cast_rays`, grazing
    hits dropped as in the scan) is on that face, ``|c - s|`` is at most the maximum range and the
    elevation of ``c - s`` lies within the beams' (lowest to highest beam).
 5. :func:`build_street` (all in metres) and :func:`street_shape`: the visible faces as a canonical
@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from benchmark.scanner import Scan, cast_rays
+from foundation.scanner import Scan, cast_rays
 from datasets.builtin import TEMPLATE_NAMES, build_part, manifold_arrays
 from datasets.io import Shape, classify_topology, normalize_shape
 from datasets.registry import Dataset, as_int, register_dataset
@@ -340,7 +340,7 @@ class Lidar:
 def lidar_scan(vertices: np.ndarray, faces: np.ndarray, poses: np.ndarray, lidar: Lidar,
                rng: np.random.Generator) -> tuple[Scan, np.ndarray]:
     """Step 3: (clean scan, noisy points (P, 3)), rows alike. One revolution per pose, cast with
-    :func:`~benchmark.scanner.cast_rays` (``sensor_ids``: the ray's row, pose ``row // (azimuths x
+    :func:`~foundation.scanner.cast_rays` (``sensor_ids``: the ray's row, pose ``row // (azimuths x
     beams)``); hits farther than ``max_range`` dropped; then P standard normals ``z`` from ``rng`` and
     the point moved ``range_sigma z`` along its beam; a point whose noisy range exceeds ``max_range``
     is dropped (with its clean row)."""

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import ConvexHull
 
-from benchmark.params import Param
+from foundation.params import Param
 from methods.base import Extraction, PointCloudMethod, register_method
 
 

@@ -5,14 +5,14 @@ exact field it learns from (computed from the mesh), its loss and its extractor.
 one file under ``methods/`` and declares itself with :func:`register_method`; the run layer only ever
 calls :func:`get_method` and the interface below, so adding a method is adding one file.
 
-Data flow (one way): ``Shape`` -> shared ``Samples`` (benchmark.sampler) -> ``Method.training_targets``
-(from ``benchmark.fields.ExactFields``) -> shared fitting loop (methods.core.fitting) -> ``Method.neural_grid``
+Data flow (one way): ``Shape`` -> shared ``Samples`` (foundation.sampler) -> ``Method.training_targets``
+(from ``foundation.fields.ExactFields``) -> shared fitting loop (methods.core.fitting) -> ``Method.neural_grid``
 or ``Method.oracle_grid`` (the field on the grid the extractor needs) -> ``Method.extract`` ->
 ``Extraction`` (mesh in the canonical frame).
 
 Timing: the job times the stages ``query`` (around ``oracle_grid``/``neural_grid``) and ``extract``
-(around ``extract``); inside them a method names its sub-steps with :func:`benchmark.timing.stage`
-(``with stage("normals"):`` -> ``query_normals_s``) or :func:`benchmark.timing.record` for durations
+(around ``extract``); inside them a method names its sub-steps with :func:`foundation.timing.stage`
+(``with stage("normals"):`` -> ``query_normals_s``) or :func:`foundation.timing.record` for durations
 an extractor returns. Methods never write ``perf_counter`` pairs.
 """
 
@@ -26,8 +26,8 @@ from typing import Any, ClassVar, Iterator, Mapping
 
 import numpy as np
 
-from benchmark.registry import Registry
-from benchmark.params import Param, ParamError
+from foundation.registry import Registry
+from foundation.params import Param, ParamError
 from methods.core.budgets import BUDGET_FAMILIES, BudgetFamily
 from methods.core.device import get_device
 
@@ -194,7 +194,7 @@ class FieldMethod(Method):
         return budget.network_config()
 
     def training_targets(self, fields, samples) -> dict[str, np.ndarray]:
-        """Labels for every sample from the exact fields (``benchmark.fields.ExactFields``)."""
+        """Labels for every sample from the exact fields (``foundation.fields.ExactFields``)."""
         raise NotImplementedError
 
     def predict(self, model, inputs):
@@ -210,7 +210,7 @@ class FieldMethod(Method):
     def oracle_grid(self, fields, N: int, cache) -> tuple[Any, dict[str, Any]]:
         """The exact field on the N^3 grid, as :meth:`extract` consumes it, and scalar facts.
 
-        ``cache`` is a :class:`benchmark.field_cache.FieldCache` (its directory may be None: off)."""
+        ``cache`` is a :class:`foundation.field_cache.FieldCache` (its directory may be None: off)."""
         raise NotImplementedError
 
     def neural_grid(self, model, N: int, device) -> tuple[Any, dict[str, Any]]:
@@ -266,9 +266,9 @@ class PointCloudMethod(Method):
     Subclasses implement :meth:`reconstruct`; classic (non-learned) methods need nothing else. A
     method that optimises something per shape under a budget of its own sets ``budget_family``; the
     job then passes its record as ``reconstruct(..., budget=record)``. The
-    job samples the point cloud (``benchmark.surface.sample_surface`` with the job's sampler
+    job samples the point cloud (``foundation.surface.sample_surface`` with the job's sampler
     stream, the same cloud for every method of a (shape, seed)) and times ``reconstruct`` as the
-    ``reconstruct`` stage (sub-steps via :func:`benchmark.timing.stage`).
+    ``reconstruct`` stage (sub-steps via :func:`foundation.timing.stage`).
     """
 
     task: ClassVar[str] = "reconstruct"
@@ -305,7 +305,7 @@ class LearnedPointCloudMethod(PointCloudMethod):
     segment (u, v) and the K nearest input points of its midpoint) or ``'point'`` (a point x and its K
     nearest input points); ``output_dim`` its outputs. Training samples and labels come from the
     shared sampler and the exact fields of each training shape, as for the encoding methods
-    (:meth:`training_targets`; ``segments`` or ``points`` of :class:`benchmark.sampler.Samples` by
+    (:meth:`training_targets`; ``segments`` or ``points`` of :class:`foundation.sampler.Samples` by
     ``network_kind``), the loss from :meth:`loss` (``prediction`` (B, output_dim) logits/values,
     ``targets`` torch tensors).
 

@@ -1,7 +1,7 @@
 """The input contract of the reports: the results and floor frames, checked once.
 
 ``results`` has one row per (shape, method, seed) job with the columns of
-:mod:`benchmark.schema` (``shape, method, seed, status ('ok'|'failed'), error``, raw metric
+:mod:`foundation.schema` (``shape, method, seed, status ('ok'|'failed'), error``, raw metric
 columns ``cd, nc, f1_<tau>, ecd, ef1``, the flags ``empty_prediction`` and ``ecd_flag``, the
 validity columns and wall-clock seconds in columns ending in ``_s``) plus any extra metric or timing
 columns a preset or a method adds. ``floor`` has one row per shape with the same metric columns:

@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from benchmark.metrics import mesh_validity
-from benchmark.serialize import dumps
+from foundation.metrics import mesh_validity
+from foundation.serialize import dumps
 import reports.plots as plots
 import reports.render as render
 from reports.frames import numeric, ok_jobs, one_line

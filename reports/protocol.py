@@ -11,7 +11,7 @@ budget      budget name (str), None in oracle mode; budget_values {budget family
 grid        N, the extraction grid has N³ points on [-1, 1]³
 seeds       list of int (stated as 'seed 0' or 'seeds 0, 1, 2')
 methods     method names in display order; shapes: shape names in dataset order
-metric_preset  a key of ``benchmark.metrics.PRESETS``
+metric_preset  a key of ``foundation.metrics.PRESETS``
 eval_points the effective number of metric samples per mesh (int)
 device      e.g. 'cpu (<CPU model>)'; cpu_model, gpu: str or None
 git_commit  str or None
@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import re
 
-from benchmark.metrics import PRESETS
+from foundation.metrics import PRESETS
 
 CONTEXT_KEYS = ("dataset", "task", "mode", "budget", "budget_values", "grid", "seeds", "methods", "shapes",
                 "metric_preset", "eval_points", "device", "cpu_model", "gpu", "git_commit", "execution")

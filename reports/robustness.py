@@ -1,7 +1,7 @@
 """Robustness tables and plots: the point-cloud methods against graded input corruptions.
 
 A run that sweeps ``pc_corruption`` (``--recipe robustness``: every name of
-:data:`benchmark.corruptions.CORRUPTIONS`) gets, per corruption kind (noise, outliers, missing,
+:data:`foundation.corruptions.CORRUPTIONS`) gets, per corruption kind (noise, outliers, missing,
 density, misalign), the sweep machinery of :mod:`reports.sweep` on the levels of that kind:
 
 Levels
@@ -36,7 +36,7 @@ import matplotlib
 import numpy as np
 import pandas as pd
 
-from benchmark.corruptions import KINDS
+from foundation.corruptions import KINDS
 from reports.frames import sensors_note
 from reports.html import esc, notes_html, plot_html, table_html
 from reports.plots import STYLE, metric_panels, panels_svg, plot_label

@@ -134,7 +134,7 @@ def method_statistics(results: pd.DataFrame, floor: pd.DataFrame | None, metrics
     results : checked results frame (:func:`reports.frames.check_results`).
     floor : checked floor frame or None (one row per shape; its rows are the shapes when it has no
         ``shape`` column).
-    metrics : ``benchmark.metrics.HeadlineMetric`` s to aggregate.
+    metrics : ``foundation.metrics.HeadlineMetric`` s to aggregate.
     methods : row order.
     """
     columns = [m.column for m in metrics]

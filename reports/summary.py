@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from benchmark.schema import columns as schema_columns
+from foundation.schema import columns as schema_columns
 from reports.decomposition import decomposition_tables
 from reports.frames import (as_bool, check_floor, check_results, numeric, ok_jobs, one_line, sensors_note, unscored_jobs,
                             without_unscored)
@@ -72,7 +72,7 @@ def shape_order(results: pd.DataFrame, floor: pd.DataFrame | None, preferred) ->
 def validity_table(results: pd.DataFrame, floor: pd.DataFrame | None, methods: list[str], caption: str) -> Table:
     """Mesh validity of the predictions per method, mean over successful jobs (GT row from the floor).
 
-    Columns are the result schema's validity columns present (``benchmark.schema``); a column
+    Columns are the result schema's validity columns present (``foundation.schema``); a column
     whose label ends in '%' is a flag, shown as the percentage of jobs where it holds.
     """
     present = [c for c in schema_columns("validity") if c.name in results.columns]

@@ -46,7 +46,7 @@ import matplotlib
 import numpy as np
 import pandas as pd
 
-from benchmark.schema import columns as schema_columns
+from foundation.schema import columns as schema_columns
 from reports.frames import as_bool, check_results, numeric, without_unscored
 from reports.html import esc, notes_html, plot_html, table_html
 from reports.plots import STYLE, metric_panels, panels_svg, plot_label

@@ -98,7 +98,7 @@ def _power_of_ten(scale: float) -> int | None:
 
 
 def metric_header(metric) -> str:
-    """Plain header of a ``benchmark.metrics.HeadlineMetric``: 'CD ×1e3 ↓', 'NC ↑', 'F1@0.005 ↑'."""
+    """Plain header of a ``foundation.metrics.HeadlineMetric``: 'CD ×1e3 ↓', 'NC ↑', 'F1@0.005 ↑'."""
     scale = ""
     if metric.scale != 1:
         power = _power_of_ten(metric.scale)

@@ -24,7 +24,7 @@ import numpy as np
 
 import reports.render as render
 import reports.viewer_data as vd
-from benchmark.metrics.presets import get_preset
+from foundation.metrics.presets import get_preset
 from datasets.io import read_mesh_file
 from reports.frames import one_line
 from reports.glb import draco_glb

@@ -1,8 +1,8 @@
 """The geometry report.html's 3D viewer shows, arrays in and out: the mesh drawn (usable faces,
 decimated for display only), the sharp-edge overlay, the first camera and the size budget.
 
-Sharp edges are the metrics' own edge points (:func:`benchmark.metrics.edges.sharp_edge_points`, NDC's
-test) on the metrics' own area-uniform samples (:func:`benchmark.surface.sample_surface`), with the
+Sharp edges are the metrics' own edge points (:func:`foundation.metrics.edges.sharp_edge_points`, NDC's
+test) on the metrics' own area-uniform samples (:func:`foundation.surface.sample_surface`), with the
 run's preset's radius and EF1 threshold in the canonical frame (:func:`edge_lengths`). The overlay
 is drawn from the scored meshes, never from a decimated one.
 """
@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from benchmark.metrics.edges import EdgeSearchTooDense, sharp_edge_points
-from benchmark.metrics.presets import DEFAULT, get_preset
-from benchmark.surface import sample_surface
+from foundation.metrics.edges import EdgeSearchTooDense, sharp_edge_points
+from foundation.metrics.presets import DEFAULT, get_preset
+from foundation.surface import sample_surface
 from methods.extractors.mesh_ops import drop_unreferenced_vertices
 
 #: Surface samples per prediction for the overlay's edge points (the metrics draw more; the edge

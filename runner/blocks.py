@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmark.storage import atomic_write
+from foundation.storage import atomic_write
 from methods.pointcloud.blocks import HaloTooSmall, blocks, owned_box, window_of
 from tasks.block_store import (CLOUD_FILE, BlockResult, BlockTask, Scene, blocks_folder, by_edges, read_scene,
                                 write_block, write_scene)
@@ -70,7 +70,7 @@ def prepare_cloud(job: JobSpec, folder: Path) -> None:
     """Write the job's input cloud (and sensors) to ``folder/cloud.npz`` and its scene grid
     (:func:`scene_of`) to ``folder/scene.json``, unless they are there."""
     from tasks.block_store import SCENE_FILE
-    from benchmark.corruptions import input_point_cloud
+    from foundation.corruptions import input_point_cloud
 
     path = folder / CLOUD_FILE
     if path.is_file() and (folder / SCENE_FILE).is_file():

@@ -19,7 +19,7 @@ import sys
 from pathlib import Path
 from typing import Any, Sequence
 
-from benchmark.params import ParamError
+from foundation.params import ParamError
 from runner.config import ConfigError, RunConfig, import_plugins
 from runner.parsing import EXIT_FAILED_TASKS, EXIT_OK, EXIT_REFUSED, OneLineParser
 from runner.plan import resolve
@@ -142,7 +142,7 @@ def _comma_list(text: str) -> tuple[str, ...]:
 
 def parse_method_params(items: Sequence[str] | None, plugins: Sequence[str]) -> dict[str, dict[str, Any]]:
     """``['sals.o_threshold=0.2']`` -> ``{'sals': {'o_threshold': 0.2}}``, typed by the method's
-    :class:`benchmark.params.Param` (ConfigError naming the bad item otherwise)."""
+    :class:`foundation.params.Param` (ConfigError naming the bad item otherwise)."""
     if not items:
         return {}
     import_plugins(plugins)
@@ -440,7 +440,7 @@ def _plan(args: argparse.Namespace, out: Path):
     """The resolved plan of this invocation; its config lists the resolved methods explicitly."""
     config = configure(args, out)
     if not config.no_cache:
-        from benchmark.storage import cache_root
+        from foundation.storage import cache_root
 
         check_writable_dir(cache_root(config.cache_dir), "--cache-dir")
     plan = resolve(config)

@@ -28,9 +28,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
-from benchmark.corruptions import CORRUPTIONS
-from benchmark.params import Param, ParamError, check_fields, params_of, setting
-from benchmark.seeding import MAX_SEED
+from foundation.corruptions import CORRUPTIONS
+from foundation.params import Param, ParamError, check_fields, params_of, setting
+from foundation.seeding import MAX_SEED
 
 MODES = ("neural", "oracle")
 TASKS = ("encode", "reconstruct", "score")

@@ -45,7 +45,7 @@ from concurrent.futures import FIRST_COMPLETED, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Callable, Iterator, Sequence
 
-from benchmark.registry import Registry
+from foundation.registry import Registry
 from runner.provenance import REPO
 
 
@@ -350,7 +350,7 @@ class RayExecutor:
             pythonpath = os.pathsep.join([str(REPO)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])
             if address:
                 # a cluster may run on other machines: ship the suite's packages with the tasks
-                modules = [str(REPO / m) for m in ("benchmark", "methods", "datasets", "reports", "runner")
+                modules = [str(REPO / m) for m in ("foundation", "methods", "datasets", "reports", "tasks", "runner")
                            if (REPO / m).is_dir()]
                 ray.init(address=address, runtime_env={"py_modules": modules,
                                                        "env_vars": {"PYTHONPATH": pythonpath}}, **common)

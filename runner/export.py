@@ -1,6 +1,6 @@
 """From ``results.db`` to the files users read: ``results.csv``, ``floor.csv`` and the reports.
 
-``results.csv`` leads with the schema's contract columns (:func:`benchmark.schema.csv_lead`),
+``results.csv`` leads with the schema's contract columns (:func:`foundation.schema.csv_lead`),
 then every other metric/timing column; rows in table order (shapes in dataset order, methods in
 display order, seeds). Raw units throughout; the reports apply the preset's multipliers.
 """
@@ -16,7 +16,7 @@ import pandas as pd
 
 from datasets.registry import up_axis_of
 from runner.records import SWEEP_PREFIX, open_run_db
-from benchmark.schema import CSV_EXCLUDED, csv_lead
+from foundation.schema import CSV_EXCLUDED, csv_lead
 
 
 def _ordered(df: pd.DataFrame, by: list[tuple[str, list]]) -> pd.DataFrame:

@@ -5,14 +5,14 @@ One folder per (input, seed) under ``--out``, the shapes named as the dataset na
 
 * ``--task reconstruct``: per corruption and seed, ``<out>/<corruption>-s<seed>/``, laid out as the
   ``pointclouds`` dataset reads it: ``<shape>.<ply|npz>`` (the very cloud of
-  :func:`benchmark.corruptions.input_point_cloud` on the job's sampler stream, with each point's sensor
+  :func:`foundation.corruptions.input_point_cloud` on the job's sampler stream, with each point's sensor
   position for a scan) and ``<shape>.gt.off`` (the GT mesh), both in the shape's source frame (the
   mesh file's own units and position), so ``run_benchmark.py --task reconstruct --dataset
   pointclouds --data-dir <folder>`` reads them back.
 * ``--task encode``: per seed, ``<out>/encode-s<seed>/``: ``<shape>.gt.off``, the GT in the
   canonical frame every method fits in, and ``<shape>.samples.npz``, the shared sampler's draw of
   the run's encode budget (``centres``, ``points``, ``segments``, ``group``: float32, canonical
-  frame, :mod:`benchmark.sampler`); the labels are the exact fields of the GT at those samples
+  frame, :mod:`foundation.sampler`); the labels are the exact fields of the GT at those samples
   (docs/PROTOCOL.md).
 
 Meshes are written as OFF with 17 significant digits (read back exactly; a PLY written by trimesh
@@ -57,9 +57,9 @@ def export_samples(plan, out: str | Path, progress=None) -> list[Path]:
 
     import numpy as np
 
-    from benchmark.sampler import sample_training_data
-    from benchmark.seeding import job_streams
-    from benchmark.storage import atomic_write
+    from foundation.sampler import sample_training_data
+    from foundation.seeding import job_streams
+    from foundation.storage import atomic_write
 
     budget = plan.budgets.get("encode")
     folders = {seed: Path(out) / f"encode-s{seed}" for seed in plan.config.seeds}
@@ -86,7 +86,7 @@ def export_clouds(plan, out: str | Path, fmt: str = "ply", progress=None) -> lis
     dataset; its swept ``pc_corruption`` values, or its one) under ``out``; returns the folders.
     A shape that cannot be loaded is skipped with its one-line error passed to ``progress``."""
     from datasets.pointclouds import write_point_cloud
-    from benchmark.corruptions import input_point_cloud
+    from foundation.corruptions import input_point_cloud
 
     if fmt not in FORMATS:
         raise ValueError(f"format must be one of {', '.join(FORMATS)}, got {fmt!r}")
@@ -113,7 +113,7 @@ def write_off(path: Path, vertices, faces) -> None:
 
     import numpy as np
 
-    from benchmark.storage import atomic_write
+    from foundation.storage import atomic_write
 
     vertices, faces = np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)
     text = io.StringIO()

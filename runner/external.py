@@ -9,7 +9,7 @@ same shapes. Which file is a shape's prediction, the frames and the seconds file
 
 from __future__ import annotations
 
-from benchmark.params import Param
+from foundation.params import Param
 from methods.base import METHODS, Method, register_method
 from tasks.score import FRAMES
 

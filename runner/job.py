@@ -17,7 +17,7 @@ import time
 import traceback as _traceback
 from typing import Callable
 
-from benchmark.timing import StageTimer, stage
+from foundation.timing import StageTimer, stage
 from runner.memory import memory_limit, out_of_memory
 from tasks.context import Progress, TaskContext, TaskResult
 from tasks.load import load_shape

@@ -113,9 +113,9 @@ def resolve(config: RunConfig) -> Plan:
             raise ConfigError(f"--plugin {name}: cannot load ({type(exc).__name__}: {exc})") from None
     if config.task == "score":
         _register_externals(config)
-    from benchmark.metrics import PRESETS
+    from foundation.metrics import PRESETS
     from methods.base import METHODS, available_methods
-    from benchmark.params import ParamError
+    from foundation.params import ParamError
 
     try:
         methods = tuple(config.methods) or tuple(available_methods(config.task))
@@ -230,7 +230,7 @@ def _variants(config: RunConfig, methods: tuple[str, ...]) -> tuple[dict[str, tu
     RunConfig checks (grid memory, ranges) and the method/budget checks apply to every value."""
     from runner import sweep as sweeps
     from methods.base import METHODS
-    from benchmark.params import ParamError
+    from foundation.params import ParamError
 
     typed = sweeps.typed_sweep(config.sweep, methods, config.mode)
     keys = {k: sweeps.sweep_key(k, methods, config.mode) for k in typed}
@@ -310,6 +310,6 @@ def build_tasks(plan: Plan) -> tuple[list[FloorSpec], list[JobSpec]]:
 
 def cache_root_of(config):
     """The cache root of a config (``--cache-dir``, else ``$SALSBENCH_CACHE``, else the home default)."""
-    from benchmark.storage import cache_root
+    from foundation.storage import cache_root
 
     return cache_root(config.cache_dir)

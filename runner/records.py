@@ -4,7 +4,7 @@ The driver (:mod:`runner.driver`) is its only writer; every finished task is com
 once (WAL journal), so killing the process loses at most the tasks in flight. Readers (reports,
 ``sqlite3``, pandas) may open it at any time.
 
-Tables (``SCHEMA_VERSION`` 2; columns declared in :mod:`benchmark.schema`):
+Tables (``SCHEMA_VERSION`` 2; columns declared in :mod:`foundation.schema`):
 
 * ``jobs`` -- one row per job, primary key ``config_hash`` (the task key, :mod:`tasks`);
   a re-run of a failed job replaces its row.
@@ -33,8 +33,8 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 import pandas as pd
 
-from benchmark.schema import PRIMARY_KEYS, TABLES, sql_columns
-from benchmark.serialize import dumps
+from foundation.schema import PRIMARY_KEYS, TABLES, sql_columns
+from foundation.serialize import dumps
 
 SCHEMA_VERSION = 3
 DB_NAME = "results.db"

@@ -30,7 +30,6 @@ Tiers and tolerances (a value passes when ``|now - baseline| <= atol + rtol * |b
 from __future__ import annotations
 
 import argparse
-import hashlib
 import shutil
 import subprocess
 import sys
@@ -41,7 +40,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from benchmark.schema import columns, regression_columns
+from foundation.schema import columns, regression_columns
+from datasets.manifest import verify_manifest as manifest_problems
 from methods.base import METHODS, available_methods
 from methods.core.device import FLOAT_PATHS, float_path_environment
 from runner.executors import available_cores
@@ -115,20 +115,8 @@ def read_list(path: Path) -> list[str]:
 
 
 def verify_manifest(data_dir: Path, manifest: Path = BASELINES / "abc_subset.sha256") -> list[str]:
-    """Problems with the pinned files (missing or changed); empty when every SHA-256 matches."""
-    problems = []
-    for line in manifest.read_text().splitlines():
-        if not line.strip():
-            continue
-        digest, name = line.split(maxsplit=1)
-        path = data_dir / name.strip()
-        if not path.is_file():
-            problems.append(f"{path}: missing (pinned by {manifest.name})")
-            continue
-        actual = hashlib.sha256(path.read_bytes()).hexdigest()
-        if actual != digest:
-            problems.append(f"{path}: SHA-256 {actual[:12]}... differs from the pinned {digest[:12]}...")
-    return problems
+    """Problems with the subset's pinned files (missing or changed): :func:`datasets.manifest.verify_manifest`."""
+    return manifest_problems(data_dir, manifest)
 
 
 def tier_methods(tier: Tier) -> list[str]:

@@ -23,8 +23,8 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from runner.config import ConfigError, RunConfig
-from benchmark.serialize import dumps
-from benchmark.storage import atomic_write
+from foundation.serialize import dumps
+from foundation.storage import atomic_write
 
 CONFIG_NAME = "config.json"
 LOCK_NAME = ".salsbench.lock"

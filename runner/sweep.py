@@ -8,7 +8,7 @@ A sweep key names one setting of a job:
   (:func:`budget_parameters`: ``budget.num_samples``, ``budget.steps``, ...);
 * a method parameter: ``METHOD.NAME`` (``sals.o_threshold``, ``sals.normals``, ``sals.faces``).
 
-Values are typed and range-checked by the key's :class:`benchmark.params.Param`, exactly as
+Values are typed and range-checked by the key's :class:`foundation.params.Param`, exactly as
 ``--method-param`` and ``--budget-param`` values are. Several keys give their cross product, in the
 order given (:func:`variants`). A key applies to a job or not (:meth:`SweepKey.applies_to`): a
 method parameter only to that method's jobs (and, if only the neural query reads it, e.g.
@@ -26,7 +26,7 @@ import itertools
 from dataclasses import dataclass
 from typing import Any, Iterable, Mapping, Sequence
 
-from benchmark.params import Param, ParamError
+from foundation.params import Param, ParamError
 from runner.config import ConfigError, RunConfig
 
 #: Run settings a sweep may vary, typed by their RunConfig fields' Params.

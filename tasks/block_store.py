@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmark.storage import atomic_write
+from foundation.storage import atomic_write
 from methods.pointcloud.blocks import Block, blocks
 from tasks.spec import JobSpec, digest
 

@@ -1,10 +1,10 @@
 """The run layer's caches: fitted weights and extracted meshes, keyed by what defines them.
 
-Layout under the cache root (:func:`benchmark.storage.cache_root`): ``fields/`` exact grid fields
-(:class:`benchmark.field_cache.FieldCache`), ``weights/<method>_<key>.pt`` fitted networks,
+Layout under the cache root (:func:`foundation.storage.cache_root`): ``fields/`` exact grid fields
+(:class:`foundation.field_cache.FieldCache`), ``weights/<method>_<key>.pt`` fitted networks,
 ``meshes/<method>_<key>.npz`` extracted meshes. Every entry is written atomically with a checksum
-(:func:`benchmark.storage.write_checked`); a damaged entry is recomputed and counted
-(:class:`benchmark.storage.CacheStats`), never used.
+(:func:`foundation.storage.write_checked`); a damaged entry is recomputed and counted
+(:class:`foundation.storage.CacheStats`), never used.
 
 Keys, all built here: weights (:func:`fit_key`), meshes (:func:`mesh_key`), the reconstruct
 task's trained networks (:func:`network_key`), and the code digest recorded with every result
@@ -15,7 +15,7 @@ weights entry's lock (``locks/weights_<method>_<key>.lock``, :meth:`RunCaches.fi
 and load the saved weights. With the caches off every job fits for itself.
 
 :func:`code_digest` follows the imports it finds in the source (``import``/``from`` statements,
-also inside functions) through the project's packages (benchmark, methods, datasets, tasks, runner) and hashes
+also inside functions) through the project's packages (foundation, methods, datasets, tasks, runner) and hashes
 what every module reached computes: its syntax tree without docstrings, so comments, docstrings
 and layout do not invalidate a cache, while any change of code does. A module that cannot be found raises instead of counting as empty, so a
 renamed module never silently stops invalidating the caches that depend on it.
@@ -35,12 +35,12 @@ from typing import Iterator
 
 import numpy as np
 
-from benchmark.field_cache import FieldCache
-from benchmark.storage import CacheStats, CorruptEntry, exclusive_lock, read_checked, write_checked
+from foundation.field_cache import FieldCache
+from foundation.storage import CacheStats, CorruptEntry, exclusive_lock, read_checked, write_checked
 from tasks.spec import digest
 
 #: Top-level packages whose modules enter code digests.
-PROJECT_PACKAGES = ("benchmark", "methods", "datasets", "tasks", "runner")
+PROJECT_PACKAGES = ("foundation", "methods", "datasets", "tasks", "runner")
 
 
 def _module_file(name: str) -> Path:
@@ -239,7 +239,7 @@ def fit_code_modules(method) -> tuple[str, ...]:
     the fit belongs to (``method.fit_name``), the fitting loop, the sampler, the exact fields."""
     from methods.base import METHODS
 
-    return (METHODS.get(method.fit_name).__module__, "methods.core.fitting", "benchmark.sampler", "benchmark.fields")
+    return (METHODS.get(method.fit_name).__module__, "methods.core.fitting", "foundation.sampler", "foundation.fields")
 
 
 def fit_code_digest(method) -> str:
@@ -249,7 +249,7 @@ def fit_code_digest(method) -> str:
 
 def extraction_code_digest(method) -> str:
     """Code an extraction depends on: the method's module (with its extractor and query code)."""
-    return code_digest(type(method).__module__, "benchmark.field_cache")
+    return code_digest(type(method).__module__, "foundation.field_cache")
 
 
 class RunCaches:
@@ -301,7 +301,7 @@ class RunCaches:
 
     @contextlib.contextmanager
     def fit_lock(self, method, key: str) -> Iterator[None]:
-        """Hold the exclusive lock of one weights entry (:func:`benchmark.storage.exclusive_lock`): a
+        """Hold the exclusive lock of one weights entry (:func:`foundation.storage.exclusive_lock`): a
         second job needing the same fit waits, then loads it."""
         path = self._path("locks", f"weights_{method.fit_name}", key, ".lock")
         if path is None:

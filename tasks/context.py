@@ -10,7 +10,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from benchmark.timing import StageTimer, record, stage
+from foundation.timing import StageTimer, record, stage
 
 
 @dataclass
@@ -83,8 +83,8 @@ class TaskContext:
     report: Progress
 
     def metric_seed(self):
-        """The job's metric stream (:func:`benchmark.seeding.job_streams`)."""
-        from benchmark.seeding import job_streams
+        """The job's metric stream (:func:`foundation.seeding.job_streams`)."""
+        from foundation.seeding import job_streams
 
         return job_streams(self.shape.content_hash, self.spec.seed).metrics
 
@@ -100,9 +100,9 @@ def mesh_to_ply(vertices: np.ndarray, faces: np.ndarray) -> bytes:
 
 def scores(ctx: TaskContext, vertices, faces, scorer: Callable | None = None) -> dict:
     """The metrics of a mesh against the shape's GT with the job's metric protocol and stream
-    (``scorer``: :func:`benchmark.metrics.evaluate`, the default, or ``floor``); the metrics'
+    (``scorer``: :func:`foundation.metrics.evaluate`, the default, or ``floor``); the metrics'
     own stages are recorded under the enclosing stage (``<stage>_<step>_s``)."""
-    from benchmark import metrics
+    from foundation import metrics
 
     spec, shape = ctx.spec, ctx.shape
     result = (scorer or metrics.evaluate)(shape.vertices, shape.faces, vertices, faces, preset=spec.metric_preset,
@@ -117,7 +117,7 @@ def scores(ctx: TaskContext, vertices, faces, scorer: Callable | None = None) ->
 def score(ctx: TaskContext, vertices, faces, scorer: Callable | None = None) -> None:
     """The job's result mesh scored (:func:`scores`, in the stage ``metrics``; a shape without a GT
     gets the prediction's validity counts only, ``metrics.evaluate_without_gt``) and kept as PLY."""
-    from benchmark.metrics import evaluate_without_gt
+    from foundation.metrics import evaluate_without_gt
 
     ctx.report("scoring")
     vertices, faces = np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)

@@ -7,7 +7,7 @@ weights), ``query`` (``method.neural_grid``); oracle mode: ``query`` (``method.o
 exact fields); then ``extract`` (``method.extract``) and ``metrics``. With ``--decompose`` the fitted
 field's error is split by component (``decompose``); with checkpoints the network is also scored
 part-way through its fit (``checkpoints``, not counted in ``fit``). Randomness comes from
-:func:`benchmark.seeding.job_streams` of (shape content hash, seed). Nothing here branches on a
+:func:`foundation.seeding.job_streams` of (shape content hash, seed). Nothing here branches on a
 method's name: everything method-specific goes through :class:`methods.base.FieldMethod`.
 """
 
@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from benchmark.storage import CacheStats
-from benchmark.timing import StageTimer, stage
+from foundation.storage import CacheStats
+from foundation.timing import StageTimer, stage
 from tasks.cache import RunCaches, fit_key, mesh_key
 from tasks.context import TaskContext, record_training_overlap, score, scores
 
@@ -85,7 +85,7 @@ def run(ctx: TaskContext) -> None:
 def _grid_field(job: _Encode):
     """Neural: sample, label, fit (or cached weights), query; oracle: the exact field on the grid.
     Returns the grid field, its facts, the network (None in oracle mode) and the exact fields."""
-    from benchmark.fields import ExactFields
+    from foundation.fields import ExactFields
 
     ctx, spec, method = job.ctx, job.spec, job.method
     fields = ExactFields(ctx.shape.vertices, ctx.shape.faces)
@@ -112,7 +112,7 @@ def _grid_field(job: _Encode):
 def _calibrate(job: _Encode, fields, model) -> dict:
     """The method's calibration of its fitted ``model`` (:meth:`methods.base.FieldMethod.calibrate`)
     with the job's calibration stream."""
-    from benchmark.seeding import job_streams
+    from foundation.seeding import job_streams
 
     ctx = job.ctx
     rng = np.random.default_rng(job_streams(ctx.shape.content_hash, job.spec.seed).calibration)
@@ -141,8 +141,8 @@ def _decompose(job: _Encode, fields, model, fitted) -> None:
 def _fit(job: _Encode, fields):
     """Sample, label and fit the method's network (``fit``; scored at the spec's checkpoints, whose
     time is the stage ``checkpoints``, not ``fit``); the weights go to the cache."""
-    from benchmark.sampler import sample_training_data
-    from benchmark.seeding import job_streams
+    from foundation.sampler import sample_training_data
+    from foundation.seeding import job_streams
     from methods.core import fitting
 
     ctx, spec, method = job.ctx, job.spec, job.method

@@ -1,5 +1,5 @@
 """The floor task of a shape: its GT scored against an independent resample of itself (the
-protocol's noise floor, :func:`benchmark.metrics.floor`); it also exports the GT mesh."""
+protocol's noise floor, :func:`foundation.metrics.floor`); it also exports the GT mesh."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from tasks.context import TaskContext, score
 
 
 def run(ctx: TaskContext) -> None:
-    from benchmark import metrics
+    from foundation import metrics
 
     shape = ctx.shape
     ctx.result.shape_info = {"source": str(shape.source), "gt_vertices": int(len(shape.vertices)),

@@ -2,20 +2,20 @@
 
 Stages: for a learned method ``network`` (its network, trained once across shapes or loaded:
 :mod:`tasks.trained_networks`), ``sample`` (the input point cloud,
-:func:`benchmark.corruptions.input_point_cloud`, with its sensors for a method that uses them),
+:func:`foundation.corruptions.input_point_cloud`, with its sensors for a method that uses them),
 ``reconstruct`` (``PointCloudMethod.reconstruct``; for a block-wise job the merge of its blocks,
 :mod:`tasks.block_store`), ``metrics``.
 """
 
 from __future__ import annotations
 
-from benchmark.storage import CacheStats
-from benchmark.timing import stage
+from foundation.storage import CacheStats
+from foundation.timing import stage
 from tasks.context import TaskContext, record_training_overlap, score
 
 
 def run(ctx: TaskContext) -> None:
-    from benchmark.corruptions import input_point_cloud
+    from foundation.corruptions import input_point_cloud
     from methods.base import get_method
 
     spec, result = ctx.spec, ctx.result

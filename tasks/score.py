@@ -21,7 +21,7 @@ import csv
 import math
 from pathlib import Path
 
-from benchmark.timing import stage
+from foundation.timing import stage
 from tasks.context import TaskContext, score
 
 #: Frames a prediction may be given in.

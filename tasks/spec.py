@@ -13,7 +13,7 @@ import hashlib
 from dataclasses import dataclass, field
 from typing import Any
 
-from benchmark.serialize import dumps
+from foundation.serialize import dumps
 
 
 def digest(obj: Any) -> str:

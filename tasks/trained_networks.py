@@ -19,7 +19,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Callable
 
-from benchmark.storage import CacheStats, CorruptEntry, exclusive_lock, read_checked, write_checked
+from foundation.storage import CacheStats, CorruptEntry, exclusive_lock, read_checked, write_checked
 
 #: The cache folder of the trained networks (every learned reconstruction method's, one file each).
 TRAINED_NETWORKS = "trained_networks"

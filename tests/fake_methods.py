@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from methods.base import FieldMethod, register_method
-from benchmark.params import Param
+from foundation.params import Param
 
 PLUGIN = "tests.fake_methods:register_fakes"
 

@@ -9,7 +9,7 @@ import torch
 import torch.nn.functional as F
 import trimesh
 
-from benchmark.surface import sample_surface
+from foundation.surface import sample_surface
 
 from methods.base import LearnedPointCloudMethod
 from methods.core.weights import weights_to_bytes

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import pytest
 
-from benchmark.params import Param, ParamError, setting
+from foundation.params import Param, ParamError, setting
 from methods.base import METHODS
 from methods.core.budgets import BUDGET_FAMILIES, budget_values, register_budget_family
 from tasks.cache import code_modules, fit_code_modules

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from benchmark.grid import grid_points, spacing
+from foundation.grid import grid_points, spacing
 from methods.base import get_method
 from methods.pointcloud.cap_udf.method import CAP_UDF_FAMILY, authors_frame, field_consistency_loss, learning_rate, voxel_downsample
 from methods.pointcloud.cap_udf.extraction import gradient_sign_marching_cubes, gradient_signs, remove_far_faces

@@ -1,4 +1,4 @@
-"""benchmark.corruptions: the named ladder of input clouds, each rung checked against its documented effect."""
+"""foundation.corruptions: the named ladder of input clouds, each rung checked against its documented effect."""
 
 import math
 
@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from benchmark.corruptions import CORRUPTIONS, LEVELS, Corruption, input_cloud, parse_corruption
-from benchmark.scanner import scan_cloud, sphere_sensors
-from benchmark.surface import sample_surface
+from foundation.corruptions import CORRUPTIONS, LEVELS, Corruption, input_cloud, parse_corruption
+from foundation.scanner import scan_cloud, sphere_sensors
+from foundation.surface import sample_surface
 
 N = 3000
 SEED = 11

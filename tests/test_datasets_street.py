@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from benchmark.scanner import cast_rays
+from foundation.scanner import cast_rays
 from datasets import DatasetError, DatasetNotFoundError, available_datasets, get_dataset
 from datasets.street import (
     CAR_GAP,

@@ -11,8 +11,8 @@ import torch
 import trimesh
 from scipy.sparse.csgraph import connected_components
 
-from benchmark.fields import ExactFields
-from benchmark.grid import spacing
+from foundation.fields import ExactFields
+from foundation.grid import spacing
 from methods.extractors.dcudf import (VectorAdam, _graph, _min_cut_sink_side, authors_laplacian_weight, authors_lr, authors_r,
                            double_cover, field_udf, integer_capacities, learning_rate, mesh_cut,
                            non_manifold_vertices, optimise_vertices)

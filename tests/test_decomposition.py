@@ -131,8 +131,8 @@ class _PlaneEdges:
 
 
 def test_the_calibrated_o_threshold_keeps_exactly_the_edges_that_cross_the_surface():
-    from benchmark.fields import ExactFields
-    from benchmark.grid import spacing
+    from foundation.fields import ExactFields
+    from foundation.grid import spacing
     from methods.fields.sals import calibrated_o_threshold
 
     N, z0 = 32, 0.1 + 1e-3  # the plane off the grid's planes

@@ -8,7 +8,7 @@ import pytest
 import trimesh
 from scipy.spatial import cKDTree
 
-from benchmark.grid import grid_points, spacing
+from foundation.grid import grid_points, spacing
 from methods.extractors import dualmesh
 from tests.data.make_dualmesh_reference import MAX_DEPTH, box_udf_grad
 

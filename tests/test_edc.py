@@ -9,8 +9,8 @@ lower endpoint (like the oracle LSF), with s = 1 - t and the plane's normal.
 import numpy as np
 import pytest
 
-from benchmark.grid import EdgeField, edge_axes, edge_endpoints, num_edges, spacing
-from benchmark.timing import StageTimer, stage
+from foundation.grid import EdgeField, edge_axes, edge_endpoints, num_edges, spacing
+from foundation.timing import StageTimer, stage
 from methods.extractors.edc import (
     FAN_PLANE_TOLERANCE,
     _adaptive_split,

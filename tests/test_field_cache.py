@@ -1,4 +1,4 @@
-"""The disk cache of exact grid fields (benchmark/field_cache.py): hits, corrupt entries, caching off."""
+"""The disk cache of exact grid fields (foundation/field_cache.py): hits, corrupt entries, caching off."""
 
 from __future__ import annotations
 
@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from benchmark.field_cache import CACHE_KINDS, FieldCache
-from benchmark.fields import ExactFields
-from benchmark.grid import EdgeField
-from benchmark.storage import MAGIC, CacheStats
+from foundation.field_cache import CACHE_KINDS, FieldCache
+from foundation.fields import ExactFields
+from foundation.grid import EdgeField
+from foundation.storage import MAGIC, CacheStats
 
 N = 12
 

@@ -1,4 +1,4 @@
-"""Exact fields (benchmark/fields.py): analytic values, brute-force grid edges, narrow band."""
+"""Exact fields (foundation/fields.py): analytic values, brute-force grid edges, narrow band."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from benchmark.fields import ExactFields, default_band
-from benchmark.grid import edge_endpoints, grid_points, ijk_axis_to_edge_index
+from foundation.fields import ExactFields, default_band
+from foundation.grid import edge_endpoints, grid_points, ijk_axis_to_edge_index
 from datasets.io import load_shape
 from tests.conftest import SHARED_DATA, requires_shared
 

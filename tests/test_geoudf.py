@@ -29,7 +29,7 @@ import pytest
 import torch
 import trimesh
 
-from benchmark.grid import grid_points, spacing
+from foundation.grid import grid_points, spacing
 from methods.base import get_method
 from methods.pointcloud.training_set import training_shapes
 import methods.pointcloud.geoudf.method as geoudf
@@ -203,7 +203,7 @@ def test_training_is_deterministic():
 @pytest.mark.slow
 @pytest.mark.learned
 def test_tiny_training_reconstructs_a_sphere(measured):
-    from benchmark.metrics import evaluate
+    from foundation.metrics import evaluate
 
     trained = get_method("geoudf").train_network(training_shapes(TINY.training_shapes), TINY, seed=0)
     cloud = _sphere_cloud(TINY.points_per_item)

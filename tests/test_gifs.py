@@ -31,9 +31,9 @@ import pytest
 import torch
 import trimesh
 
-from benchmark.fields import ExactFields
-from benchmark.grid import LOWER, spacing
-from benchmark.surface import sample_surface
+from foundation.fields import ExactFields
+from foundation.grid import LOWER, spacing
+from foundation.surface import sample_surface
 from methods.base import get_method
 from methods.pointcloud.training_set import training_shapes
 import methods.pointcloud.gifs.method as gifs
@@ -191,7 +191,7 @@ def test_training_is_deterministic():
 @pytest.mark.slow
 @pytest.mark.learned
 def test_tiny_training_reconstructs_a_sphere(measured):
-    from benchmark.metrics import evaluate
+    from foundation.metrics import evaluate
 
     radius = 0.7
     method = get_method("gifs")

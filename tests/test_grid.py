@@ -1,9 +1,9 @@
-"""The grid's flat edge numbering (benchmark/grid.py): hand-worked ids, round trips, endpoint layout."""
+"""The grid's flat edge numbering (foundation/grid.py): hand-worked ids, round trips, endpoint layout."""
 
 import numpy as np
 import pytest
 
-from benchmark.grid import (
+from foundation.grid import (
     EdgeField,
     edge_axes,
     edge_endpoint_values,

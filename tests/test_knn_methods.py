@@ -53,8 +53,8 @@ import pytest
 import torch
 import trimesh
 
-from benchmark.metrics import evaluate
-from benchmark.surface import sample_surface
+from foundation.metrics import evaluate
+from foundation.surface import sample_surface
 from methods.base import get_method
 from methods.pointcloud.knn.network import make_knn_network
 from methods.pointcloud.knn.training import KNN_BUDGETS

@@ -1,7 +1,7 @@
 """The import contract of docs/ARCHITECTURE.md, checked over the source: every import statement of
 every project module (also those inside functions), so a lazy import cannot hide an upward arrow.
 
-Layers, lowest first: foundation (``benchmark``, ``datasets``), methods, reports, tasks (what a
+Layers, lowest first: foundation (``foundation``, ``datasets``), methods, reports, tasks (what a
 task computes), run (``runner``).
 A module may import its own layer and the ones below it; and the modules import each other without
 a cycle.
@@ -17,7 +17,7 @@ import pytest
 from tasks.cache import project_imports
 
 REPO = Path(__file__).resolve().parents[1]
-PACKAGES = ("benchmark", "datasets", "methods", "reports", "tasks", "runner")
+PACKAGES = ("foundation", "datasets", "methods", "reports", "tasks", "runner")
 LAYERS = ("foundation", "methods", "reports", "tasks", "run")
 
 
@@ -25,7 +25,7 @@ def layer(module: str) -> str | None:
     top = module.split(".")[0]
     if top == "runner":
         return "run"
-    if top in ("benchmark", "datasets"):
+    if top in ("foundation", "datasets"):
         return "foundation"
     return top if top in PACKAGES else None
 
@@ -111,7 +111,7 @@ def test_the_folders_import_each_other_without_a_cycle(graph):
 def test_the_checker_sees_lazy_and_relative_imports():
     modules = project_modules()
     graph = import_graph(modules)
-    assert layer("runner.cli") == "run" and layer("benchmark.metrics.edges") == "foundation"
+    assert layer("runner.cli") == "run" and layer("foundation.metrics.edges") == "foundation"
     assert "methods.base" in graph["runner.plan"]  # imported inside a function
     assert any(t.startswith("reports") for t in graph["runner.export"])
     assert import_cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]

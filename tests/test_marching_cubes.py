@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from benchmark.grid import grid_points, spacing
+from foundation.grid import grid_points, spacing
 from methods.extractors.marching_cubes import far_occupancy, marching_cubes_grid
 
 N = 40

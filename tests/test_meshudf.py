@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from benchmark.grid import grid_points, spacing
-from benchmark.timing import StageTimer, stage
+from foundation.grid import grid_points, spacing
+from foundation.timing import StageTimer, stage
 from methods.extractors.meshudf import CUBE_EDGES, mc_case_table, meshudf_marching_cubes
 
 N = 40

@@ -5,14 +5,14 @@ import numpy as np
 import pytest
 import trimesh
 
-from benchmark.field_cache import FieldCache
-from benchmark.fields import ExactFields
-from benchmark.metrics import evaluate
-from benchmark.sampler import sample_training_data
-from benchmark.timing import StageTimer, stage
+from foundation.field_cache import FieldCache
+from foundation.fields import ExactFields
+from foundation.metrics import evaluate
+from foundation.sampler import sample_training_data
+from foundation.timing import StageTimer, stage
 from methods.base import METHODS, FieldMethod, available_methods, get_method, presentation
 from methods.core.fitting import BUDGETS, fit
-from benchmark.params import Param
+from foundation.params import Param
 from methods.fields.sals import PAPER_O_THRESHOLD, edge_draws
 
 N_POINTS = 30_000  # metric samples: enough to separate sharp from rounded at N = 40
@@ -120,8 +120,8 @@ def edge_coverage(mesh_V, mesh_F, corners, edges, n=200_000):
     0.005 D of a box edge), D the box's diagonal."""
     from scipy.spatial import cKDTree
 
-    from benchmark.metrics import sharp_edge_points
-    from benchmark.surface import sample_surface
+    from foundation.metrics import sharp_edge_points
+    from foundation.surface import sample_surface
 
     D = np.linalg.norm(corners.max(0) - corners.min(0))
     P, normals = sample_surface(mesh_V, mesh_F, n, np.random.default_rng(0))
@@ -139,7 +139,7 @@ def test_oracle_sals_cube_is_closed_but_where_grid_edges_cross_its_sharp_edges_t
     the box's edges. There a grid edge crossing both faces of a sharp edge carries one first-hit
     label, SALS's own representation, and E-DC adds its quad where a sign-based DC would add none:
     so even the exact field gives no watertight cube, and no fit of it can."""
-    from benchmark.grid import spacing
+    from foundation.grid import spacing
 
     V, F, corners, edges = generic_box()
     N = 48

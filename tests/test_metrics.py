@@ -1,4 +1,4 @@
-"""Tests of benchmark.metrics on shapes whose answers can be worked out by hand:
+"""Tests of foundation.metrics on shapes whose answers can be worked out by hand:
 presets, the distance formulas, evaluate/floor on degenerate input, seeds. Sharp-edge points,
 validity and the command line have their own files (tests/test_metrics_*.py)."""
 
@@ -12,8 +12,8 @@ import pytest
 import trimesh
 from scipy.integrate import dblquad
 
-from benchmark import metrics as M
-from benchmark.seeding import job_streams
+from foundation import metrics as M
+from foundation.seeding import job_streams
 
 
 def box(side: float):
@@ -355,7 +355,7 @@ def test_the_gt_samples_reused_for_a_second_prediction_give_the_numbers_it_gets_
     once: a prediction scored after another equals, to the bit, its scores in a fresh process."""
     import importlib
 
-    evaluate_module = importlib.import_module("benchmark.metrics.evaluate")
+    evaluate_module = importlib.import_module("foundation.metrics.evaluate")
     gt = trimesh.creation.box(extents=(1.0, 0.6, 0.4))
     first = trimesh.creation.box(extents=(1.02, 0.6, 0.4))
     second = trimesh.creation.icosphere(subdivisions=3, radius=0.5)

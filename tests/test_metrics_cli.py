@@ -1,4 +1,4 @@
-"""The command line ``python -m benchmark.metrics GT PRED`` (benchmark/metrics/__main__.py)."""
+"""The command line ``python -m foundation.metrics GT PRED`` (foundation/metrics/__main__.py)."""
 
 from __future__ import annotations
 
@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 import trimesh
 
-from benchmark.metrics.__main__ import main
+from foundation.metrics.__main__ import main
 from tests.conftest import REPO
 
 
 def run_cli(*args):
     return subprocess.run(
-        [sys.executable, "-m", "benchmark.metrics", *map(str, args)], cwd=REPO, capture_output=True, text=True, timeout=120
+        [sys.executable, "-m", "foundation.metrics", *map(str, args)], cwd=REPO, capture_output=True, text=True, timeout=120
     )
 
 

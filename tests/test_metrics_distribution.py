@@ -1,4 +1,4 @@
-"""The distance distribution (benchmark.metrics.distances.distance_distribution) and the precision
+"""The distance distribution (foundation.metrics.distances.distance_distribution) and the precision
 and recall of every F1 threshold, on cases worked out by hand."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from benchmark import metrics as M
+from foundation import metrics as M
 from tests.test_metrics import square
 
 KEYS = ("dist_median", "dist_p90", "dist_p99", "hausdorff")

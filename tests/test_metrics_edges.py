@@ -1,4 +1,4 @@
-"""Sharp-edge points (benchmark.metrics.edges): exact against brute force, the twelve edges of a
+"""Sharp-edge points (foundation.metrics.edges): exact against brute force, the twelve edges of a
 cube, none on a sphere, and the refusal of searches that would take minutes."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
 
-from benchmark import metrics as M
-from benchmark.surface import sample_surface
+from foundation import metrics as M
+from foundation.surface import sample_surface
 from tests.test_metrics import box, sphere
 
 

@@ -1,4 +1,4 @@
-"""Volumetric IoU (benchmark.metrics.iou) on shapes whose overlap is known exactly."""
+"""Volumetric IoU (foundation.metrics.iou) on shapes whose overlap is known exactly."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from benchmark import metrics as M
-from benchmark.metrics.evaluate import _sampling_streams
+from foundation import metrics as M
+from foundation.metrics.evaluate import _sampling_streams
 from tests.test_metrics import box, square
 
 N = M.IOU_POINTS  # 100,000

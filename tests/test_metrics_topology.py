@@ -1,5 +1,5 @@
-"""Euler characteristic, genus (benchmark.metrics.validity) and self-intersecting face pairs
-(benchmark.metrics.self_intersections) of meshes whose counts are worked out by hand."""
+"""Euler characteristic, genus (foundation.metrics.validity) and self-intersecting face pairs
+(foundation.metrics.self_intersections) of meshes whose counts are worked out by hand."""
 
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from benchmark import metrics as M
+from foundation import metrics as M
 from tests.test_metrics import box
 
-SI = importlib.import_module("benchmark.metrics.self_intersections")  # the module (the package's name is the function)
+SI = importlib.import_module("foundation.metrics.self_intersections")  # the module (the package's name is the function)
 
 
 def hand_cube(origin=(0.0, 0.0, 0.0)):

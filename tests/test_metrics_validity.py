@@ -1,10 +1,10 @@
-"""Mesh validity columns (benchmark.metrics.validity), counted by hand on small meshes."""
+"""Mesh validity columns (foundation.metrics.validity), counted by hand on small meshes."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from benchmark import metrics as M
+from foundation import metrics as M
 from tests.test_metrics import box, square
 
 

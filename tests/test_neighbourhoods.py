@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmark.grid import edge_inputs, point_inputs, spacing
+from foundation.grid import edge_inputs, point_inputs, spacing
 from methods.pointcloud.neighbourhoods import (band_edges, band_points, knn_neighbourhoods, nearest_distance,
                                                segment_neighbourhoods)
 

@@ -7,9 +7,9 @@ import pytest
 import torch
 import trimesh
 
-from benchmark.fields import ExactFields
-from benchmark.metrics import evaluate
-from benchmark.sampler import sample_training_data
+from foundation.fields import ExactFields
+from foundation.metrics import evaluate
+from foundation.sampler import sample_training_data
 from methods.base import get_method
 from methods.core.fitting import BUDGETS, fit, model_from_bytes, model_to_bytes, parameter_groups
 from methods.core.network import LODNetwork, make_network

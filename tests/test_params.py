@@ -1,4 +1,4 @@
-"""benchmark.params: one parser for every setting (scalars, tuples, tables), and dataclasses declared by it."""
+"""foundation.params: one parser for every setting (scalars, tuples, tables), and dataclasses declared by it."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import dataclasses
 
 import pytest
 
-from benchmark.params import REQUIRED, Param, ParamError, check_fields, params_of, setting, with_overrides
+from foundation.params import REQUIRED, Param, ParamError, check_fields, params_of, setting, with_overrides
 
 
 @pytest.mark.parametrize("param, value, expected", [

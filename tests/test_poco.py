@@ -132,7 +132,7 @@ def test_training_is_deterministic():
 @pytest.mark.slow
 @pytest.mark.learned
 def test_tiny_training_reconstructs_a_sphere(measured):
-    from benchmark.metrics import evaluate
+    from foundation.metrics import evaluate
 
     method = get_method("poco", views=2)
     trained = method.train_network(training_shapes(TINY.training_shapes), TINY, seed=0)

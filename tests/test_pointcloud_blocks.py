@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import torch
 
-from benchmark.grid import LOWER, edge_index_to_ijk_axis, num_edges, spacing
-from benchmark.surface import sample_surface
+from foundation.grid import LOWER, edge_index_to_ijk_axis, num_edges, spacing
+from foundation.surface import sample_surface
 from datasets.rooms import room_shape
 from methods.base import get_method
 from methods.pointcloud.blocks import (
@@ -154,7 +154,7 @@ def test_clip_to_box_keeps_the_faces_whose_centroid_is_inside():
 
 @pytest.mark.slow
 def test_windows_tile_the_scene_and_poisson_by_windows_stays_close_to_global(room_cloud):
-    from benchmark.metrics import evaluate
+    from foundation.metrics import evaluate
 
     shape, points = room_cloud
     poisson = get_method("poisson")

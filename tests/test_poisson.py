@@ -84,7 +84,7 @@ def test_normals_face_each_points_sensor_when_the_cloud_carries_them():
 
 
 def test_poisson_and_ball_pivoting_say_they_use_sensors_and_reconstruct_a_scan():
-    from benchmark.corruptions import input_cloud
+    from foundation.corruptions import input_cloud
     import trimesh
 
     sphere = trimesh.creation.icosphere(4, radius=0.9)

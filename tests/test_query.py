@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from benchmark.grid import edge_endpoints, edge_inputs, num_edges, spacing
+from foundation.grid import edge_endpoints, edge_inputs, num_edges, spacing
 from methods.core import query
 
 
@@ -170,8 +170,8 @@ def test_sparse_edges_equal_dense_on_fitted_sals_networks(index, torch_threads):
     edges it does not evaluate lie in blocks whose coarse edges all read o_hat <= o_low: isolated
     hits away from the surface. Bounded here: no missed hit within 2 h of the GT surface, at most 1 %
     of the hits."""
-    from benchmark.fields import ExactFields
-    from benchmark.sampler import sample_training_data
+    from foundation.fields import ExactFields
+    from foundation.sampler import sample_training_data
     from datasets.builtin import generate_shape
     from methods.base import get_method
     from methods.core.fitting import fit, get_budget

@@ -1,4 +1,4 @@
-"""Exact line-triangle rasterisation (benchmark/raster.py) on hand-countable cases.
+"""Exact line-triangle rasterisation (foundation/raster.py) on hand-countable cases.
 
 Grid N = 5: lines at -1, -0.5, 0, 0.5, 1 (h = 0.5). The square [-0.75, 0.75]^2 x {0.1} is split by
 its diagonal x = y into two triangles; the 9 z-lines through it are (x, y) in {-0.5, 0, 0.5}^2,
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from benchmark import raster
-from benchmark.raster import closed_chain_winding_number, grid_line_hits
+from foundation import raster
+from foundation.raster import closed_chain_winding_number, grid_line_hits
 
 SQUARE_V = np.array([[-0.75, -0.75, 0.1], [0.75, -0.75, 0.1], [0.75, 0.75, 0.1], [-0.75, 0.75, 0.1]])
 SQUARE_F = np.array([[0, 1, 2], [0, 2, 3]])  # both with normal +z; shared edge 0-2 on x = y

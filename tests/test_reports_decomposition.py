@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from benchmark.metrics import PRESETS
+from foundation.metrics import PRESETS
 from reports.decomposition import decomposition_frame, decomposition_tables, variant_label
 from reports.table import table_markdown
 

@@ -21,7 +21,7 @@ import pandas as pd
 import pytest
 
 from runner.cli import EXIT_FAILED_TASKS, EXIT_REFUSED, main
-from benchmark.schema import csv_lead
+from foundation.schema import csv_lead
 from tests.fake_methods import PLUGIN
 
 REPO = Path(__file__).resolve().parents[1]

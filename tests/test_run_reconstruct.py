@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 
 from runner.cli import EXIT_REFUSED, main
-from benchmark.corruptions import input_point_cloud
+from foundation.corruptions import input_point_cloud
 from datasets import get_dataset
 
 
@@ -19,7 +19,7 @@ def shape():
 
 
 def test_the_input_cloud_is_seeded_on_the_surface_and_noised_as_asked(shape):
-    from benchmark.fields import ExactFields
+    from foundation.fields import ExactFields
 
     (a, sensors), (b, _) = input_point_cloud(shape, 5000, 0.0, seed=0), input_point_cloud(shape, 5000, 0.0, seed=0)
     assert a.shape == (5000, 3) and np.array_equal(a, b) and sensors is None  # uniform samples carry no sensors
@@ -31,9 +31,9 @@ def test_the_input_cloud_is_seeded_on_the_surface_and_noised_as_asked(shape):
 
 
 def test_a_scan_input_is_on_the_surface_with_a_sensor_per_point_and_the_same_for_every_method(shape):
-    from benchmark.corruptions import input_cloud
-    from benchmark.fields import ExactFields
-    from benchmark.seeding import job_streams
+    from foundation.corruptions import input_cloud
+    from foundation.fields import ExactFields
+    from foundation.seeding import job_streams
 
     points, sensors = input_point_cloud(shape, 5000, 0.0, seed=0, corruption="scan")
     assert points.shape == sensors.shape == (5000, 3)
@@ -191,8 +191,8 @@ def test_export_inputs_needs_an_output_folder(tmp_path, capsys):
 
 
 def test_encode_inputs_are_the_canonical_gt_and_the_shared_samplers_draw(tmp_path, shape):
-    from benchmark.sampler import sample_training_data
-    from benchmark.seeding import job_streams
+    from foundation.sampler import sample_training_data
+    from foundation.seeding import job_streams
     from datasets.io import read_mesh_file
     from methods.base import get_method
 

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from benchmark.sampler import GROUPS, group_counts, sample_training_data
-from benchmark.seeding import job_streams
-from benchmark.surface import sample_surface
+from foundation.sampler import GROUPS, group_counts, sample_training_data
+from foundation.seeding import job_streams
+from foundation.surface import sample_surface
 
 
 @pytest.fixture(scope="module")
@@ -51,7 +51,7 @@ def test_surface_centres_are_the_shared_surface_samplers_points(unit_sphere):
 
 
 def test_same_stream_same_samples_other_seed_differs(unit_sphere):
-    """The run layer passes the sampler stream of (shape, seed) (benchmark.seeding)."""
+    """The run layer passes the sampler stream of (shape, seed) (foundation.seeding)."""
     V, F = unit_sphere
     a = sample_training_data(V, F, 5000, job_streams("shape-a", 7).sampler_rng())
     b = sample_training_data(V, F, 5000, job_streams("shape-a", 7).sampler_rng())

@@ -1,4 +1,4 @@
-"""benchmark.scanner, the virtual range scanner, on meshes whose visible parts are known by hand."""
+"""foundation.scanner, the virtual range scanner, on meshes whose visible parts are known by hand."""
 
 import math
 
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from benchmark.scanner import DEFAULT_GRAZING_DROPOUT_DEG, range_scan, scan_cloud, sphere_sensors
+from foundation.scanner import DEFAULT_GRAZING_DROPOUT_DEG, range_scan, scan_cloud, sphere_sensors
 
 R = 0.8  # sphere radius
 

@@ -3,7 +3,7 @@ edges marching cubes cuts off), the fit it shares with ``sdf``, and a machine wi
 
 import pytest
 
-from benchmark.metrics import evaluate
+from foundation.metrics import evaluate
 from methods.extractors import ndc
 from methods.base import METHODS, available_methods, get_method
 from tasks.cache import fit_code_digest

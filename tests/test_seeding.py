@@ -1,11 +1,11 @@
-"""benchmark.seeding: the job's streams, and that the first three are those of a three-way spawn
+"""foundation.seeding: the job's streams, and that the first three are those of a three-way spawn
 (the calibration stream is spawned fourth)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from benchmark.seeding import job_seed_sequence, job_streams
+from foundation.seeding import job_seed_sequence, job_streams
 
 
 def test_the_first_three_streams_are_those_of_a_three_way_spawn():

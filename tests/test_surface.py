@@ -1,10 +1,10 @@
-"""benchmark.surface.sample_surface, the one area-uniform surface sampler, on hand-checked meshes."""
+"""foundation.surface.sample_surface, the one area-uniform surface sampler, on hand-checked meshes."""
 
 import numpy as np
 import pytest
 import trimesh
 
-from benchmark.surface import MIN_RELATIVE_AREA, binary_exponent, relative_area, sample_surface
+from foundation.surface import MIN_RELATIVE_AREA, binary_exponent, relative_area, sample_surface
 
 
 def test_sample_surface_is_area_uniform_seeded_and_on_the_surface():

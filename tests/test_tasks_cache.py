@@ -11,45 +11,45 @@ import pytest
 
 from tasks.cache import RunCaches, code_digest
 from runner.cli import main
-from benchmark.storage import CacheStats
+from foundation.storage import CacheStats
 from tests.fake_methods import PLUGIN
 
 
 def test_code_digest_follows_imports_and_refuses_missing_modules(tmp_path, monkeypatch):
-    import benchmark
+    import foundation
 
     pkg = tmp_path / "benchmark_extra"
-    monkeypatch.setattr(benchmark, "__path__", [*benchmark.__path__, str(pkg)])
+    monkeypatch.setattr(foundation, "__path__", [*foundation.__path__, str(pkg)])
     pkg.mkdir()
-    (pkg / "zz_probe_a.py").write_text("def f():\n    from benchmark import zz_probe_b\n")
+    (pkg / "zz_probe_a.py").write_text("def f():\n    from foundation import zz_probe_b\n")
     (pkg / "zz_probe_b.py").write_text("X = 1\n")
     code_digest.cache_clear()
-    first = code_digest("benchmark.zz_probe_a")
+    first = code_digest("foundation.zz_probe_a")
     (pkg / "zz_probe_b.py").write_text("X = 2\n")  # a module imported lazily, inside a function
     code_digest.cache_clear()
-    assert code_digest("benchmark.zz_probe_a") != first
+    assert code_digest("foundation.zz_probe_a") != first
     (pkg / "zz_probe_b.py").write_text('"""A docstring."""\n# a comment\nX = (\n    2)  # same code\n')
     code_digest.cache_clear()
-    second = code_digest("benchmark.zz_probe_a")
+    second = code_digest("foundation.zz_probe_a")
     (pkg / "zz_probe_b.py").write_text("X = 2\n")
     code_digest.cache_clear()
-    assert code_digest("benchmark.zz_probe_a") == second  # comments, docstrings, layout: same digest
-    (pkg / "zz_probe_a.py").write_text('def f():\n    "Doc."\n    from benchmark import zz_probe_b\n')
+    assert code_digest("foundation.zz_probe_a") == second  # comments, docstrings, layout: same digest
+    (pkg / "zz_probe_a.py").write_text('def f():\n    "Doc."\n    from foundation import zz_probe_b\n')
     code_digest.cache_clear()
-    assert code_digest("benchmark.zz_probe_a") == second
+    assert code_digest("foundation.zz_probe_a") == second
     (pkg / "zz_probe_b.py").write_text('@register_method(order=1, color="#000000")\nclass M:\n    pass\nX = 2\n')
     code_digest.cache_clear()
-    colored = code_digest("benchmark.zz_probe_a")
+    colored = code_digest("foundation.zz_probe_a")
     (pkg / "zz_probe_b.py").write_text('@register_method(order=9, color="#ffffff", note="a note")\nclass M:\n    pass\nX = 2\n')
     code_digest.cache_clear()
-    assert code_digest("benchmark.zz_probe_a") == colored  # how tables show a method is not code
+    assert code_digest("foundation.zz_probe_a") == colored  # how tables show a method is not code
     (pkg / "zz_probe_b.py").write_text('@register_method(order=9, color="#ffffff", note="a note")\nclass M:\n    y = 1\nX = 2\n')
     code_digest.cache_clear()
-    assert code_digest("benchmark.zz_probe_a") != colored
+    assert code_digest("foundation.zz_probe_a") != colored
     (pkg / "zz_probe_b.py").unlink()  # renamed away: never silently counted as empty
     code_digest.cache_clear()
-    with pytest.raises(ModuleNotFoundError, match="imports 'benchmark.zz_probe_b', which does not exist"):
-        code_digest("benchmark.zz_probe_a")
+    with pytest.raises(ModuleNotFoundError, match="imports 'foundation.zz_probe_b', which does not exist"):
+        code_digest("foundation.zz_probe_a")
     code_digest.cache_clear()
 
 
@@ -89,7 +89,7 @@ def test_damaged_weights_are_refitted_not_used(fakes, tmp_path):
 
 
 def test_a_weights_entry_that_would_run_code_is_refused_unread_and_refitted(tmp_path):
-    from benchmark.storage import write_checked
+    from foundation.storage import write_checked
     from methods.base import get_method
     from tests.test_weights import crafted_weights
 
@@ -114,7 +114,7 @@ METRICS = ["shape", "method", "cd", "nc", "f1_005", "f1_01", "ecd", "ef1", "n_ve
 def check_cache_entries(cache) -> int:
     """Every entry under ``cache`` reads back whole (its checksum holds) and no temporary file is
     left; returns the number of entries."""
-    from benchmark.storage import read_checked
+    from foundation.storage import read_checked
 
     entries = [p for kind in ("fields", "weights", "meshes") for p in (cache / kind).rglob("*") if p.is_file()]
     assert not [p for p in cache.rglob("*.tmp")]
@@ -143,3 +143,62 @@ def test_two_runs_sharing_one_cache_fit_each_network_once_and_equal_a_serial_run
     fits = (a.set_index(["shape", "method"])["fitted"] + b.set_index(["shape", "method"])["fitted"])
     assert (fits == 1).all(), fits  # never fitted twice, never lost
     assert check_cache_entries(shared) == check_cache_entries(tmp_path / "fresh-cache")
+
+
+def _specs():
+    from tasks import FloorSpec, JobSpec
+
+    common = dict(dataset="builtin", dataset_options={}, shape="s", eval_points=None, metric_preset="default", seed=0)
+    return [FloorSpec(**common), JobSpec(**common, method="sals"), JobSpec(**common, method="udf-ndc"),
+            JobSpec(**common, method="poisson", task="reconstruct"),
+            JobSpec(**common, method="sals-knn", task="reconstruct", budget="cpu")]
+
+
+@pytest.mark.parametrize("spec", _specs(), ids=lambda s: s.label)
+def test_a_tasks_code_digest_covers_what_computes_it_and_nothing_of_the_run_layer_or_the_reports(spec):
+    """The modules of a task's digest: its body, the shape loading, the method's module and what
+    they import; never the command line, the configuration, the executors, the progress display,
+    the driver or the reports, so an edit there leaves every finished result valid."""
+    from tasks.cache import code_modules, task_code_modules
+
+    modules = set(code_modules(*task_code_modules(spec)))
+    assert {spec.body, "tasks.load", "foundation.metrics.evaluate"} <= modules
+    assert not {m for m in modules if m.split(".")[0] in ("runner", "reports")}, sorted(modules)
+    if spec.kind == "job":
+        from methods.base import METHODS
+
+        assert METHODS.get(spec.method).__module__ in modules
+
+
+@pytest.mark.slow
+def test_edits_outside_the_computing_code_re_run_no_finished_job(tmp_path):
+    """A finished run, then a copy of the code with an unused function appended to the CLI module
+    and to the executors' module and a help text changed: the same command into the same run
+    directory runs none of its jobs again."""
+    import shutil
+    import subprocess
+    import sys
+
+    repo = pathlib.Path(__file__).resolve().parents[1]
+    copy = tmp_path / "copy"
+    for name in ("foundation", "datasets", "methods", "reports", "runner", "tasks"):
+        shutil.copytree(repo / name, copy / name, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(repo / "run_benchmark.py", copy / "run_benchmark.py")
+    with open(copy / "runner" / "cli.py", "a") as f:
+        f.write("\n\ndef an_unused_function():\n    return 'nothing calls this'\n")
+    with open(copy / "runner" / "executors.py", "a") as f:
+        f.write("\n\ndef another_unused_function():\n    return 'nor this'\n")
+    config = copy / "runner" / "config.py"
+    config.write_text(config.read_text().replace("override a value of the budget", "change a value of the budget"))
+    args = ["--methods", "sdf", "bof", "--mode", "oracle", "--grid", "24", "--eval-points", "5000", "--limit", "1",
+            "--out", str(tmp_path / "run"), "--cache-dir", str(tmp_path / "cache"), "--gallery", "0", "--quiet",
+            "--executor", "local"]
+
+    def run(root):
+        proc = subprocess.run([sys.executable, str(root / "run_benchmark.py"), *args], cwd=root, capture_output=True,
+                              text=True, timeout=600)
+        assert proc.returncode == 0, proc.stderr
+        return proc.stderr.strip().splitlines()[-1]
+
+    assert "(3 run now, 0 done before)" in run(repo)
+    assert "(0 run now, 3 done before)" in run(copy)

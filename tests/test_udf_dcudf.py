@@ -4,8 +4,8 @@ against the udf method's MeshUDF) and the fit it shares with ``udf``; the steps 
 
 import numpy as np
 
-from benchmark.fields import ExactFields
-from benchmark.metrics import evaluate
+from foundation.fields import ExactFields
+from foundation.metrics import evaluate
 from methods.base import get_method
 from tasks.cache import fit_code_digest
 from tests.test_methods import N_POINTS, _oracle, generic_box

@@ -3,8 +3,8 @@ vertices land on its edges and corners) and the fit it shares with ``udf``."""
 
 import numpy as np
 
-from benchmark.fields import ExactFields
-from benchmark.metrics import evaluate
+from foundation.fields import ExactFields
+from foundation.metrics import evaluate
 from methods.base import get_method
 from tasks.cache import fit_code_digest
 from tests.test_methods import N_POINTS, _oracle, edge_coverage, generic_box

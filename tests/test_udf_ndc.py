@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from benchmark.field_cache import FieldCache
-from benchmark.fields import ExactFields
-from benchmark.grid import spacing
+from foundation.field_cache import FieldCache
+from foundation.fields import ExactFields
+from foundation.grid import spacing
 from methods.extractors import ndc, undc
 from methods.training import undc as undc_training
 from methods.base import available_methods, get_method

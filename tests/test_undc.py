@@ -7,8 +7,8 @@ import pytest
 import torch
 import trimesh
 
-from benchmark.fields import ExactFields
-from benchmark.grid import index_to_world
+from foundation.fields import ExactFields
+from foundation.grid import index_to_world
 from methods.extractors import undc
 from methods.training import undc as undc_training
 
@@ -34,7 +34,7 @@ def test_exact_labels_of_a_cube_contour_the_cube_with_its_corners_and_no_boundar
     # the flags are the grid edges the exact segment field hits
     edges = fields.grid_edges(N)
     ijk = np.argwhere(labels.edge_flags)
-    from benchmark.grid import ijk_axis_to_edge_index
+    from foundation.grid import ijk_axis_to_edge_index
     assert np.array_equal(np.sort(ijk_axis_to_edge_index(N, ijk[:, :3], ijk[:, 3])), np.flatnonzero(edges.hit))
     assert not (labels.edge_flags & ~labels.edge_mask).any()  # a crossing edge is always inside the loss mask
     vertices, faces = _contour(labels.edge_flags, labels.cell_offsets)
@@ -173,7 +173,7 @@ def test_tiny_budget_is_deterministic_and_lowers_both_losses(tiny_shapes, tmp_pa
 def test_a_weights_file_that_would_run_code_is_refused_unread(tmp_path):
     from tests.test_weights import crafted_weights
 
-    from benchmark.storage import write_checked
+    from foundation.storage import write_checked
 
     path = tmp_path / "undc.pt"
     write_checked(path, crafted_weights(tmp_path / "ran"))  # whoever writes the file writes its checksum

@@ -7,11 +7,11 @@ import pytest
 import torch
 import trimesh
 
-from benchmark.field_cache import FieldCache
-from benchmark.fields import ExactFields
-from benchmark.grid import grid_points, spacing
-from benchmark.metrics import evaluate
-from benchmark.sampler import sample_training_data
+from foundation.field_cache import FieldCache
+from foundation.fields import ExactFields
+from foundation.grid import grid_points, spacing
+from foundation.metrics import evaluate
+from foundation.sampler import sample_training_data
 from methods.base import get_method
 from methods.core.fitting import BUDGETS, fit, get_budget, make_optimizer, parameter_groups
 from methods.core.network import FeatureGrid, make_network

@@ -1,7 +1,7 @@
 """Budgets: how much compute a method's fit or training gets, as named, typed, frozen records.
 
 Each family of methods reads one kind of record (a frozen dataclass whose fields are declared with
-:func:`benchmark.params.setting`): the encode methods' per-shape fit (:class:`methods.core.fitting.Budget`),
+:func:`foundation.params.setting`): the encode methods' per-shape fit (:class:`methods.core.fitting.Budget`),
 the K-NN networks' training, POCO's, GIFS's, GeoUDF's and CAP-UDF's own. A family registers its named
 records (``paper``, ``cpu``, ``tiny``, ...) with :func:`register_budget_family`; a method names its
 family (``Method.budget_family``). ``--budget NAME`` picks the record of that name in the family of
@@ -18,14 +18,14 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any, Iterable, Mapping
 
-from benchmark.params import Param, params_of, with_overrides
-from benchmark.registry import Registry
+from foundation.params import Param, params_of, with_overrides
+from foundation.registry import Registry
 
 
 @dataclass(frozen=True)
 class BudgetFamily:
     """The named budgets of one family of methods: frozen records of one dataclass type (fields
-    declared with :func:`benchmark.params.setting`), e.g. the encode methods' per-shape fit or the
+    declared with :func:`foundation.params.setting`), e.g. the encode methods' per-shape fit or the
     K-NN networks' training. ``params``: the fields a run may change (``override=True``):
     ``--budget-param FIELD=VALUE`` and ``--sweep budget.FIELD=...`` set them in every family of the
     run that has them."""

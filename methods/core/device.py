@@ -76,7 +76,7 @@ def seeded_generator(seed: int, device: torch.device | str | None = None) -> tor
     """Seed torch's global generator (network initialisation) with ``seed`` and return a fresh
     ``torch.Generator`` on ``device`` seeded with it (batch order). On the CPU also turn on
     deterministic algorithms (see module docstring). ``seed``: a job's fitting stream
-    (:mod:`benchmark.seeding`)."""
+    (:mod:`foundation.seeding`)."""
     seed = int(seed)
     torch.manual_seed(seed)
     device = get_device(device)

@@ -17,7 +17,7 @@ NaN checks, checkpoints, timing) are :func:`methods.core.training_loop.run_steps
 training. Everything about a fit is
 decided by (method, samples, targets, budget, seed): on the CPU the same seed gives the same
 weights bit for bit (same thread count). The seed is the job's fitting stream
-(``benchmark.seeding.JobStreams.fitting_seed``); it seeds the network initialisation and the
+(``foundation.seeding.JobStreams.fitting_seed``); it seeds the network initialisation and the
 batch-order generator. A non-finite loss raises :class:`FittingError` (the runner records the job
 as failed and goes on), and so does a fit that ends with a constant network (every output the same
 on the training inputs: its Softplus units died, :func:`check_not_constant`), which would otherwise
@@ -32,7 +32,7 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
-from benchmark.params import Param, check_fields, setting
+from foundation.params import Param, check_fields, setting
 from methods.core.budgets import register_budget_family
 from methods.core.weights import weights_from_bytes, weights_to_bytes
 from methods.core.device import get_device, seeded_generator
@@ -224,7 +224,7 @@ def fit(method, samples, targets: dict, budget: str | Budget, seed: int = 0, dev
     Parameters
     ----------
     method : a :class:`methods.base.FieldMethod` (gives input/output sizes and the loss).
-    samples : :class:`benchmark.sampler.Samples` (or anything ``method.network_inputs`` accepts).
+    samples : :class:`foundation.sampler.Samples` (or anything ``method.network_inputs`` accepts).
     targets : dict of (M, ...) arrays from ``method.training_targets``.
     budget : a :class:`Budget` or its name in :data:`BUDGETS`.
     seed : initialisation and batch-order seed.
@@ -264,7 +264,7 @@ def fit(method, samples, targets: dict, budget: str | Budget, seed: int = 0, dev
 
 
 # ---------------------------------------------------------------------------------------------
-# weights as bytes (the run layer's cache stores them checksummed, benchmark.storage)
+# weights as bytes (the run layer's cache stores them checksummed, foundation.storage)
 # ---------------------------------------------------------------------------------------------
 
 

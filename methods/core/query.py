@@ -1,4 +1,4 @@
-"""Evaluating a fitted network on the grid of :mod:`benchmark.grid`: dense, sparse, with input gradients.
+"""Evaluating a fitted network on the grid of :mod:`foundation.grid`: dense, sparse, with input gradients.
 
 Everything is chunked (``chunk`` rows per forward pass: small chunks are faster on the CPU, see
 docs/PERFORMANCE.md, "Measurements moved from docstrings") and returns numpy float32 arrays.
@@ -40,7 +40,7 @@ import numpy as np
 import torch
 from scipy.ndimage import binary_dilation
 
-from benchmark.grid import LOWER, edge_index_to_ijk_axis, edges_in_points, num_edges, point_inputs, spacing
+from foundation.grid import LOWER, edge_index_to_ijk_axis, edges_in_points, num_edges, point_inputs, spacing
 from methods.core.device import flush_denormals, get_device, synchronize
 from methods.core.network import endpoint_split, value_and_input_gradients
 

@@ -3,7 +3,7 @@ fits or trains (``{'state_dict', 'config', 'budget', 'method', 'final_loss'}`` t
 ``torch.save``), and the one error of a weights file that cannot be used.
 
 ``config`` is the keyword arguments that rebuild the network (``model.config``); the run layer
-stores the bytes checksummed (:mod:`benchmark.storage`). Everything but the tensors is plain data
+stores the bytes checksummed (:mod:`foundation.storage`). Everything but the tensors is plain data
 (dicts, lists, tuples, numbers, strings), and bytes are read back with ``torch.load(...,
 weights_only=True)``: a file that would run code when unpickled (an object with ``__reduce__``) is
 refused unread, whoever wrote its checksum.

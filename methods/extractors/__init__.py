@@ -2,15 +2,15 @@
 
 Every extractor is named after its algorithm and follows one convention:
 
-* Input: the field sampled on the grid of :mod:`benchmark.grid` (N points per axis on [-1, 1]^3,
+* Input: the field sampled on the grid of :mod:`foundation.grid` (N points per axis on [-1, 1]^3,
   spacing ``h = 2 / (N - 1)``, ``'ij'`` indexing; E-DC: on its edges, by flat edge id), distances
   in canonical units, plus the extractor's own options. Extractors that query the field off the
   grid take callables on canonical points (P, 3) float64.
 * Output: a :class:`methods.base.Extraction`: ``vertices`` (n, 3) float64 in the canonical frame,
   ``faces`` (m, 3) int64 indexing them, ``info`` a dict of scalar facts about the extraction
   (counts, the parameters it resolved), recorded with the job.
-* Timing: sub-steps are timed inside the extractor with :func:`benchmark.timing.stage` (or
-  :func:`benchmark.timing.record`); called within a job's ``extract`` stage a sub-step ``qef``
+* Timing: sub-steps are timed inside the extractor with :func:`foundation.timing.stage` (or
+  :func:`foundation.timing.record`); called within a job's ``extract`` stage a sub-step ``qef``
   becomes the column ``extract_qef_s``. Outside an active timer these do nothing.
 
 The extractors: :func:`marching_cubes.marching_cubes_grid` (signed fields),

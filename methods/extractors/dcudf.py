@@ -56,8 +56,8 @@ from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import breadth_first_order, connected_components, maximum_flow
 from scipy.spatial import cKDTree
 
-from benchmark.grid import LOWER, spacing
-from benchmark.timing import stage
+from foundation.grid import LOWER, spacing
+from foundation.timing import stage
 from methods.core.schedules import warmup_then_cosine
 from methods.base import Extraction
 from methods.core.device import get_device
@@ -488,7 +488,7 @@ def dcudf(udf_grid: np.ndarray, udf_and_grad: UDFAndGrad, udf_at: Callable[[np.n
     then, with ``cut``, the min-cut (seeds from ``numpy.random.default_rng(seed)``).
     ``laplacian_weight`` defaults to :func:`authors_laplacian_weight` (N); ``udf_at`` pads the grid
     (:func:`double_cover`). The sub-steps are timed as the stages ``double_cover``, ``optimise`` and
-    ``cut`` (:mod:`benchmark.timing`).
+    ``cut`` (:mod:`foundation.timing`).
 
     Returns :class:`methods.base.Extraction`: vertices (n, 3) float64, canonical frame; faces (m, 3)
     int64, unoriented; info ``r``, ``iterations``, ``cover_faces`` (faces of the double cover),

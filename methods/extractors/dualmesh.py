@@ -4,7 +4,7 @@ No signs are needed: every cell near the surface gets a dual vertex from a QEF o
 sampled in it, and every grid edge whose four cells all have a vertex gets a quad. Steps, with the
 constants of the authors' ``extract_mesh.py`` / ``octree.cpp`` / ``qef_eigen.cpp`` / ``mesh_utils.cpp``:
 
-1. **Leaves**: the cells (of the grid of :mod:`benchmark.grid`) whose centroid has
+1. **Leaves**: the cells (of the grid of :mod:`foundation.grid`) whose centroid has
    ``d < sqrt(3) h / 2 + 0.002``. The authors reach them by an octree refined with the same test
    at every level; for a 1-Lipschitz field the leaves at the finest level are exactly these cells.
 2. **Samples**: each leaf's 3 x 3 x 3 lattice (corners, edge and face midpoints, centroid; spacing
@@ -41,8 +41,8 @@ from typing import Callable
 
 import numpy as np
 
-from benchmark.grid import LOWER, spacing
-from benchmark.timing import stage
+from foundation.grid import LOWER, spacing
+from foundation.timing import stage
 from methods.base import Extraction
 from methods.extractors.mesh_ops import drop_unreferenced_vertices
 
@@ -306,8 +306,8 @@ def triangulate(vertices, kinds, directions, quad_ids) -> np.ndarray:
 
 
 def dualmesh_udf(udf_grid: np.ndarray, udf_grad_at, udf_at) -> Extraction:
-    """DualMesh-UDF on the grid of :mod:`benchmark.grid`, timed as the stage ``dualmesh``
-    (:mod:`benchmark.timing`).
+    """DualMesh-UDF on the grid of :mod:`foundation.grid`, timed as the stage ``dualmesh``
+    (:mod:`foundation.timing`).
 
     Parameters
     ----------

@@ -1,6 +1,6 @@
 """E-DC: the edge-based dual contouring of SALS, as pure array functions.
 
-Input: the intersected grid edges of the grid of :mod:`benchmark.grid` (flat edge ids, flat edge
+Input: the intersected grid edges of the grid of :mod:`foundation.grid` (flat edge ids, flat edge
 order), their hit parameters ``s`` and (optionally) unit normals. Output: an unoriented triangle
 mesh in the canonical frame [-1, 1]^3. No signs and no orientation are used, so open and
 non-manifold surfaces come out naturally.
@@ -40,8 +40,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from benchmark.grid import LOWER, edge_index_to_ijk_axis, num_edges, spacing
-from benchmark.timing import record, stage
+from foundation.grid import LOWER, edge_index_to_ijk_axis, num_edges, spacing
+from foundation.timing import record, stage
 from methods.base import Extraction
 from methods.extractors.mesh_ops import drop_unreferenced_vertices
 
@@ -345,8 +345,8 @@ def edge_dual_contouring(N: int, edge_ids: np.ndarray, s: np.ndarray, normals: n
 
     Parameters
     ----------
-    N : grid resolution (points per axis), grid of :mod:`benchmark.grid`.
-    edge_ids : (K,) flat ids of the intersected edges (flat edge order of benchmark.grid), no duplicates.
+    N : grid resolution (points per axis), grid of :mod:`foundation.grid`.
+    edge_ids : (K,) flat ids of the intersected edges (flat edge order of foundation.grid), no duplicates.
     s : (K,) hit parameters in [0, 1]: hit point ``p = s u + (1 - s) v``, ``u`` the lower endpoint.
     normals : (K, 3) normals at the hits (normalised here, sign irrelevant), or None for the
         'no normals' ablation (every vertex is the mass point of its cell's edge points).
@@ -378,7 +378,7 @@ def edge_dual_contouring(N: int, edge_ids: np.ndarray, s: np.ndarray, normals: n
     boundary edges) are removed. Faces (m, 3) int64, unoriented: 4 per interior intersected edge
     (fan4) or 2 (quad2); fan4-adaptive: 4 per fan edge (input order), then 2 per split edge (input
     order). Info: ``intersected_edges`` (K). The steps are timed as the stages ``edge_points``,
-    ``qef`` and ``faces`` (:mod:`benchmark.timing`).
+    ``qef`` and ``faces`` (:mod:`foundation.timing`).
     """
     if faces not in FACE_RULES:
         raise ValueError(f"faces must be one of {', '.join(map(repr, FACE_RULES))}, got {faces!r}")

@@ -1,9 +1,9 @@
 """Marching cubes on a grid field, for the signed representations (`sdf`, `bof`).
 
-The field is sampled on the grid of :mod:`benchmark.grid` (``(N, N, N)``, ``'ij'`` indexing, point
+The field is sampled on the grid of :mod:`foundation.grid` (``(N, N, N)``, ``'ij'`` indexing, point
 ``[i, j, k]`` at ``(-1 + i h, -1 + j h, -1 + k h)``). The mesh comes from scikit-image's
 ``marching_cubes`` (Lewiner tables) and is mapped to the canonical frame [-1, 1]^3 with
-:func:`benchmark.grid.index_to_world`.
+:func:`foundation.grid.index_to_world`.
 
 Orientation: faces are returned OUTWARD, i.e. the right-hand normal ``(b - a) x (c - a)`` of a face
 ``(a, b, c)`` points away from the inside region, so a closed surface has positive signed volume.
@@ -20,7 +20,7 @@ import numpy as np
 from scipy import ndimage
 from skimage.measure import marching_cubes as _skimage_marching_cubes
 
-from benchmark.grid import index_to_world
+from foundation.grid import index_to_world
 from methods.base import Extraction
 
 __all__ = ["marching_cubes_grid", "skimage_marching_cubes", "empty_mesh", "far_occupancy"]
@@ -52,7 +52,7 @@ def marching_cubes_grid(volume: np.ndarray, level: float = 0.0, inside: str = "l
 
     Parameters
     ----------
-    volume : (N, N, N) array (float or bool) of field values on the grid of :mod:`benchmark.grid`.
+    volume : (N, N, N) array (float or bool) of field values on the grid of :mod:`foundation.grid`.
         A boolean mask is read as 0/1 (use ``level=0.5, inside='high'`` for "True = inside").
         NaN values are rejected with a ``ValueError``.
     level : iso value (0 for an SDF, 0.5 for an occupancy probability).

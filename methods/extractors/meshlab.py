@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from benchmark.timing import stage
+from foundation.timing import stage
 
 
 def oriented_point_set(points: np.ndarray, k: int, sensors: np.ndarray | None = None):

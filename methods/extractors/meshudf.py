@@ -1,6 +1,6 @@
 """MeshUDF-style extraction of an unsigned distance field (`udf`; Guillard et al. 2022).
 
-Input: the UDF ``d`` and its unit gradient ``g`` on the grid of :mod:`benchmark.grid` (``(N, N, N)``
+Input: the UDF ``d`` and its unit gradient ``g`` on the grid of :mod:`foundation.grid` (``(N, N, N)``
 and ``(N, N, N, 3)``, ``'ij'`` indexing, spacing ``h = 2 / (N - 1)``). Output: an unoriented
 triangle mesh in the canonical frame [-1, 1]^3 (it may have small holes).
 
@@ -40,8 +40,8 @@ from typing import Callable
 
 import numpy as np
 
-from benchmark.grid import LOWER, ijk_axis_to_edge_index, num_edges, spacing
-from benchmark.timing import record, stage
+from foundation.grid import LOWER, ijk_axis_to_edge_index, num_edges, spacing
+from foundation.timing import record, stage
 from methods.base import Extraction
 from methods.extractors.mesh_ops import drop_unreferenced_vertices
 
@@ -160,7 +160,7 @@ def meshudf_marching_cubes(udf: np.ndarray, grad: np.ndarray, *,
     -------
     :class:`methods.base.Extraction`: vertices (n, 3) float64, canonical frame; faces (m, 3) int64,
     unoriented; no info. The steps are timed as the stages ``candidates``, ``pseudo_signs``,
-    ``triangulation`` and ``filter`` (:mod:`benchmark.timing`).
+    ``triangulation`` and ``filter`` (:mod:`foundation.timing`).
     """
     udf = np.asarray(udf)
     grad = np.asarray(grad)

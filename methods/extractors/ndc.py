@@ -41,8 +41,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from benchmark.grid import index_to_world, spacing
-from benchmark.timing import stage
+from foundation.grid import index_to_world, spacing
+from foundation.timing import stage
 from methods.base import Extraction
 from methods.core.weights import WeightsError
 
@@ -263,7 +263,7 @@ def dual_contour_signs(inside: np.ndarray, offsets: np.ndarray, cells: np.ndarra
 
 
 def neural_dual_contouring(sdf: np.ndarray, state: dict | None = None) -> Extraction:
-    """NDC on an SDF sampled on the grid of :mod:`benchmark.grid`.
+    """NDC on an SDF sampled on the grid of :mod:`foundation.grid`.
 
     Parameters
     ----------
@@ -275,7 +275,7 @@ def neural_dual_contouring(sdf: np.ndarray, state: dict | None = None) -> Extrac
     :class:`methods.base.Extraction`: vertices (M, 3) float64, canonical frame, one per active
     cell (:func:`active_cells`); faces (F, 3) int64, oriented outward (:func:`dual_contour_signs`);
     info ``ndc_cells`` (M). The network and the dual contouring are timed as the stages
-    ``ndc_network`` and ``dual_contouring`` (:mod:`benchmark.timing`).
+    ``ndc_network`` and ``dual_contouring`` (:mod:`foundation.timing`).
     """
     sdf = np.asarray(sdf, dtype=np.float32)
     N = sdf.shape[0]

@@ -37,11 +37,11 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from benchmark.fields import default_band
-from benchmark.grid import index_to_world, spacing
-from benchmark.raster import grid_line_hits
-from benchmark.storage import CorruptEntry, read_checked, write_checked
-from benchmark.timing import stage
+from foundation.fields import default_band
+from foundation.grid import index_to_world, spacing
+from foundation.raster import grid_line_hits
+from foundation.storage import CorruptEntry, read_checked, write_checked
+from foundation.timing import stage
 from methods.base import Extraction
 from methods.core.weights import WeightsError, load_plain
 from methods.extractors.ndc import (KERNEL_OFFSETS, inference_state, leaky, pointwise_conv, receptive_positions,
@@ -254,8 +254,8 @@ class EdgeHits:
 
 def edge_hits(fields, N: int) -> EdgeHits:
     """Every intersection of the N^3 grid's edges with the mesh of ``fields``
-    (:class:`benchmark.fields.ExactFields`), from the exact grid-line intersections of
-    :func:`benchmark.raster.grid_line_hits` (rule 'closed', as :meth:`ExactFields.grid_edges`).
+    (:class:`foundation.fields.ExactFields`), from the exact grid-line intersections of
+    :func:`foundation.raster.grid_line_hits` (rule 'closed', as :meth:`ExactFields.grid_edges`).
     Repeats (the same point and normal from two triangles sharing an edge) are dropped."""
     h = spacing(N)
     starts, axes, ts, normals = [], [], [], []
@@ -468,7 +468,7 @@ def undc_predict(bool_network: UNDCNetwork, float_network: UNDCNetwork, udf_voxe
 
 def unsigned_neural_dual_contouring(udf: np.ndarray, bool_network: UNDCNetwork,
                                     float_network: UNDCNetwork) -> Extraction:
-    """UNDC on a UDF sampled on the grid of :mod:`benchmark.grid`: :func:`undc_predict` on ``udf / h``.
+    """UNDC on a UDF sampled on the grid of :mod:`foundation.grid`: :func:`undc_predict` on ``udf / h``.
 
     Parameters
     ----------
@@ -479,7 +479,7 @@ def unsigned_neural_dual_contouring(udf: np.ndarray, bool_network: UNDCNetwork,
     -------
     :class:`methods.base.Extraction`: vertices (C, 3) float64, canonical frame; faces (F, 3) int64,
     unoriented; info ``undc_edges`` (flagged edges) and ``undc_cells`` (C). Timed as the stage
-    ``undc_networks`` (:mod:`benchmark.timing`).
+    ``undc_networks`` (:mod:`foundation.timing`).
     """
     udf = np.asarray(udf, dtype=np.float32)
     N = udf.shape[0]
@@ -500,7 +500,7 @@ def weights_path() -> Path:
 
 def save_weights(path: str | Path, bool_network: UNDCNetwork, float_network: UNDCNetwork, info: dict) -> str:
     """Write both networks and ``info`` (budget, training-set digest, losses...) to ``path``, atomically
-    and checksummed (:func:`benchmark.storage.write_checked`). Returns the SHA-256 of the payload."""
+    and checksummed (:func:`foundation.storage.write_checked`). Returns the SHA-256 of the payload."""
     buf = io.BytesIO()
     torch.save({"bool": bool_network.state_dict(), "float": float_network.state_dict(),
                 "config": dict(bool_network.config), "info": dict(info)}, buf)
@@ -518,7 +518,7 @@ def _training_command(path: Path) -> str:
 def load_weights(path: str | Path | None = None) -> tuple[UNDCNetwork, UNDCNetwork, dict]:
     """(bool network, float network, info (with ``sha256``, the payload's digest)) from ``path`` (default
     :func:`weights_path`), in eval mode
-    on the CPU, after checking the file's checksum (:func:`benchmark.storage.read_checked`).
+    on the CPU, after checking the file's checksum (:func:`foundation.storage.read_checked`).
 
     Raises :class:`WeightsError` with one line naming the file (and, when it is absent, the command
     that trains it)."""

@@ -16,7 +16,7 @@ import numpy as np
 from scipy.special import expit
 import torch.nn.functional as F
 
-from benchmark.params import Param
+from foundation.params import Param
 from methods.core import query
 from methods.base import Extraction, FieldMethod, register_method, signed_hybrid, wrong_side_points
 from methods.extractors.marching_cubes import marching_cubes_grid

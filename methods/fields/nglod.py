@@ -15,7 +15,7 @@ is the finest LOD's column, by the sparse query with ``sdf``'s criterion on that
 
 from __future__ import annotations
 
-from benchmark.params import Param
+from foundation.params import Param
 from methods.core import query
 from methods.base import register_method
 from methods.fields.sdf import SDFMethod

@@ -19,7 +19,7 @@ docs/PROTOCOL.md, "E-DC face rules").
 Normals (``normals=True``): the gradient of s_hat w.r.t. the endpoint nearer the hit (d s/d u if
 s_hat > 0.5, else d s/d v), normalised (sigmoid is monotonic, so the gradient of the s logit has the
 same direction), by autograd in chunks, only for intersected edges.
-Oracle: the exact segment field of every grid edge (``benchmark.fields``, disk-cached) and the hit
+Oracle: the exact segment field of every grid edge (``foundation.fields``, disk-cached) and the hit
 triangle's normal.
 Neural: sparse query of :mod:`methods.core.query` on the edges: coarse edges (length S h) with
 o_hat > ``o_low`` (0.02) mark the blocks they touch; far edges are "no hit"; each grid point is
@@ -37,9 +37,9 @@ import hashlib
 import numpy as np
 from scipy.special import expit
 
-from benchmark.grid import edge_inputs, spacing
-from benchmark.params import Param
-from benchmark.timing import stage
+from foundation.grid import edge_inputs, spacing
+from foundation.params import Param
+from foundation.timing import stage
 from methods.core import query
 from methods.base import Extraction, FieldMethod, median_angle_deg, register_method
 from methods.core.segment_field import nearer_endpoint_normals, segment_loss, segment_targets
@@ -85,8 +85,8 @@ def calibrated_o_threshold(model, fields, N: int, rng: np.random.Generator, devi
     the last edge kept and the next, and facts: the threshold, the F1 there and at the paper's 0.1,
     the labelled edges and their hits. With no hit among them the default threshold stays.
     """
-    from benchmark.grid import LOWER, edge_endpoints, ijk_axis_to_edge_index
-    from benchmark.surface import sample_surface
+    from foundation.grid import LOWER, edge_endpoints, ijk_axis_to_edge_index
+    from foundation.surface import sample_surface
 
     h = spacing(N)
     points, _ = sample_surface(fields.vertices, fields.faces, n, rng)

@@ -4,7 +4,7 @@ Network x (3) -> f(x), the signed distance (negative inside). Target: ``ExactFie
 signed by the winding number; on open meshes the |w| = 0.5 membranes are kept: the expected
 failure of signed fields). Loss: ``mean |clamp(f, -0.1, 0.1) - clamp(d, -0.1, 0.1)|``.
 Extraction: marching cubes at ``level`` (0) with inside = low values, faces outward.
-Oracle: the exact narrow-band SDF on the grid (``benchmark.fields``, |d| clamped to the band).
+Oracle: the exact narrow-band SDF on the grid (``foundation.fields``, |d| clamped to the band).
 Neural: the sparse query of :mod:`methods.core.query` with the criterion "corners straddle 0 or
 min |f| < sqrt(3) S h / 2"; far points hold the trilinear upsampling of the coarse values.
 """
@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from benchmark.grid import spacing
-from benchmark.params import Param
+from foundation.grid import spacing
+from foundation.params import Param
 from methods.core import query
 from methods.base import Extraction, FieldMethod, register_method, signed_hybrid, wrong_side_points
 from methods.extractors.marching_cubes import marching_cubes_grid

@@ -12,8 +12,8 @@ the fitted values wherever they are not clipped.
 
 from __future__ import annotations
 
-from benchmark.grid import spacing
-from benchmark.params import Param
+from foundation.grid import spacing
+from foundation.params import Param
 from methods.extractors import ndc
 from methods.core import query
 from methods.core.weights import WeightsError

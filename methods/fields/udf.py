@@ -11,7 +11,7 @@ Loss::
 Extraction: :func:`methods.extractors.meshudf.meshudf_marching_cubes` on (d, unit gradient) with the
 vertex UDF for the face filter read from the continuous field (``udf_at``: the network, or the exact
 UDF in oracle mode) when ``vertex_udf='field'`` (default), else MeshUDF's first-order estimate.
-Oracle: exact narrow-band UDF + exact gradient on the grid (``benchmark.fields``).
+Oracle: exact narrow-band UDF + exact gradient on the grid (``foundation.fields``).
 Neural: sparse query of f (criterion: some block corner has f < sqrt(3) S h / 2; far points hold the
 trilinear upsampling of the coarse values), then the autograd gradient only where f < 2 h,
 normalised; 0 elsewhere.
@@ -22,9 +22,9 @@ from __future__ import annotations
 import numpy as np
 import torch.nn.functional as F
 
-from benchmark.grid import point_inputs, spacing
-from benchmark.params import Param
-from benchmark.timing import stage
+from foundation.grid import point_inputs, spacing
+from foundation.params import Param
+from foundation.timing import stage
 from methods.core import query
 from methods.base import Extraction, FieldMethod, median_angle_deg, register_method
 from methods.core.network import value_and_input_gradient

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from benchmark.params import Param
+from foundation.params import Param
 from methods.core import query
 from methods.base import Extraction, register_method
 from methods.extractors.dualmesh import dualmesh_udf

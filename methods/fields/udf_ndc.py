@@ -22,8 +22,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from benchmark.grid import spacing
-from benchmark.params import Param
+from foundation.grid import spacing
+from foundation.params import Param
 from methods.core import query
 from methods.extractors import undc
 from methods.core.weights import WeightsError

@@ -50,9 +50,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from benchmark.grid import axis_coords, point_inputs, spacing
-from benchmark.params import Param
-from benchmark.timing import stage
+from foundation.grid import axis_coords, point_inputs, spacing
+from foundation.params import Param
+from foundation.timing import stage
 from methods.core import query
 from methods.base import Extraction, FieldMethod, register_method
 from methods.core.network import value_and_input_gradients

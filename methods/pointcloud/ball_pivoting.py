@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from benchmark.timing import stage
+from foundation.timing import stage
 from methods.base import Extraction, PointCloudMethod, register_method
 from methods.extractors.meshlab import current_mesh, oriented_point_set
-from benchmark.params import Param
+from foundation.params import Param
 
 
 @register_method(order=120, color="#bcbd22")

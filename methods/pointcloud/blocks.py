@@ -1,7 +1,7 @@
 """Block-wise reconstruction of a large cloud: one global grid, blocks that own disjoint parts of it.
 
 A scene is reconstructed on one global grid of ``N`` points per axis over the canonical cube
-(:mod:`benchmark.grid`; a scene larger than an object gets a larger ``N`` at the same spacing
+(:mod:`foundation.grid`; a scene larger than an object gets a larger ``N`` at the same spacing
 relative to its point density, :func:`density_scale`). The grid's points are partitioned into
 blocks of ``block`` points per axis: block ``b`` owns the points ``lo <= ijk < hi`` (per axis), the
 grid edges that start at them and the cells whose lowest corner they are, so every point, edge and
@@ -43,7 +43,7 @@ from typing import Callable, Iterable
 import numpy as np
 from pykdtree.kdtree import KDTree
 
-from benchmark.grid import LOWER, edge_inputs, ijk_axis_to_edge_index, spacing
+from foundation.grid import LOWER, edge_inputs, ijk_axis_to_edge_index, spacing
 from methods.base import Extraction
 from methods.extractors.edc import edge_dual_contouring
 from methods.pointcloud.errors import TooFewPointsError

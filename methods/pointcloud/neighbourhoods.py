@@ -2,7 +2,7 @@
 nearest input points of query points or segments, the distance to the cloud, and the grid points
 and edges that lie within a radius of it (the band a method evaluates; farther is "no surface").
 
-Coordinates are canonical ([-1, 1]^3, :mod:`benchmark.grid`); KD-trees are pykdtree's (exact,
+Coordinates are canonical ([-1, 1]^3, :mod:`foundation.grid`); KD-trees are pykdtree's (exact,
 deterministic). The band is found by marking the voxels holding input points, dilating them by
 ``ceil(radius / h) + 1`` grid steps (scipy.ndimage) and keeping the candidates whose exact distance
 is within the radius.
@@ -14,7 +14,7 @@ import numpy as np
 from pykdtree.kdtree import KDTree
 from scipy import ndimage
 
-from benchmark.grid import LOWER, edge_inputs, edges_in_points, point_inputs, spacing
+from foundation.grid import LOWER, edge_inputs, edges_in_points, point_inputs, spacing
 
 
 def knn_neighbourhoods(points: np.ndarray, queries: np.ndarray, k: int) -> np.ndarray:

@@ -24,11 +24,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from benchmark.timing import stage
+from foundation.timing import stage
 from methods.base import Extraction, PointCloudMethod, register_method
 from methods.extractors.mesh_ops import keep_vertices
 from methods.extractors.meshlab import current_mesh, oriented_point_set, poisson_depth
-from benchmark.params import Param
+from foundation.params import Param
 
 
 @register_method(order=110, color="#8c564b")

@@ -27,11 +27,11 @@ is labelled anyway.
 Pools (:class:`TrainingPools`)
 ------------------------------
 Per training shape: ``budget.pool_samples`` samples of the shared five-group sampler
-(:func:`benchmark.sampler.sample_training_data`), labelled by ``method.training_targets`` with the
-shape's :class:`benchmark.fields.ExactFields`, keeping the network's anchors only (segments (M, 2, 3)
+(:func:`foundation.sampler.sample_training_data`), labelled by ``method.training_targets`` with the
+shape's :class:`foundation.fields.ExactFields`, keeping the network's anchors only (segments (M, 2, 3)
 for a ``'segment'`` method, points (M, 3) for a ``'point'`` one), and ``budget.pool_points``
-area-uniform surface points (:func:`benchmark.surface.sample_surface`), everything float32. All the
-draws of shape ``i`` come from its own Generator (:func:`benchmark.seeding.training_streams`): the
+area-uniform surface points (:func:`foundation.surface.sample_surface`), everything float32. All the
+draws of shape ``i`` come from its own Generator (:func:`foundation.seeding.training_streams`): the
 same (shapes, budget, seed) gives the same pools, in any process. Non-finite labels raise
 :class:`methods.core.training_loop.FittingError` naming the shape.
 """
@@ -49,11 +49,11 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
-from benchmark.fields import ExactFields
-from benchmark.params import Param, setting
-from benchmark.sampler import sample_training_data
-from benchmark.seeding import training_streams
-from benchmark.surface import sample_surface
+from foundation.fields import ExactFields
+from foundation.params import Param, setting
+from foundation.sampler import sample_training_data
+from foundation.seeding import training_streams
+from foundation.surface import sample_surface
 from datasets import MeshError, Shape, get_dataset
 from datasets.builtin import VARIANTS, generate_shape
 from methods.core.training_loop import FittingError, run_steps

@@ -44,8 +44,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from benchmark.fields import ExactFields
-from benchmark.params import Param, check_fields, setting
+from foundation.fields import ExactFields
+from foundation.params import Param, check_fields, setting
 from methods.core.budgets import register_budget_family
 from methods.extractors import undc
 from methods.core.device import seeded_generator

@@ -1,7 +1,7 @@
 """CAP-UDF's surface extraction from an unsigned distance field and its gradient field
 (Zhou et al. 2022, ``tools/surface_extraction.py`` and ``tools/utils.py: remove_far`` of their code).
 
-Input: the UDF ``d`` and its gradient ``g`` (any length) on the grid of :mod:`benchmark.grid`
+Input: the UDF ``d`` and its gradient ``g`` (any length) on the grid of :mod:`foundation.grid`
 (``(N, N, N)`` and ``(N, N, N, 3)``, ``'ij'`` indexing, spacing ``h = 2 / (N - 1)``). Output: an
 unoriented triangle mesh in the canonical frame.
 
@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from benchmark.grid import LOWER, ijk_axis_to_edge_index, spacing
+from foundation.grid import LOWER, ijk_axis_to_edge_index, spacing
 from methods.base import Extraction
 from methods.extractors.mesh_ops import drop_unreferenced_vertices
 from methods.extractors.meshudf import CUBE_CORNERS, CUBE_EDGES, mc_case_table

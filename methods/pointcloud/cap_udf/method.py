@@ -39,9 +39,9 @@ import torch
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from benchmark.grid import spacing
-from benchmark.params import Param, check_fields, setting
-from benchmark.timing import stage
+from foundation.grid import spacing
+from foundation.params import Param, check_fields, setting
+from foundation.timing import stage
 from methods.core.schedules import warmup_then_cosine
 from methods.base import Extraction, PointCloudMethod, register_method
 from methods.core.budgets import register_budget_family
@@ -49,7 +49,7 @@ from methods.pointcloud.cap_udf.extraction import gradient_sign_marching_cubes, 
 from methods.pointcloud.cap_udf.network import CAPUDFNetwork, pull, udf_and_gradient
 from methods.core.device import get_device, seeded_generator
 from methods.pointcloud.neighbourhoods import band_points
-from benchmark.grid import point_inputs
+from foundation.grid import point_inputs
 from methods.core.training_loop import run_steps
 
 #: The authors' sigma: distance to the 51st point of a KD-tree query, the point itself the first.

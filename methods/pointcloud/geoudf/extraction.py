@@ -3,7 +3,7 @@ gradient on the grid, written after the authors' ``eval_rec.py`` (``custom_march
 ``edge_detector``, ``glb_optimize_cube``, ``edge_interp_point``), not copied from it.
 
 Input: the UDF u (N, N, N) and its unit gradient g (N, N, N, 3) on the grid of
-:mod:`benchmark.grid` (point ``[i, j, k]`` at ``-1 + (i, j, k) h``, canonical units). Per cell:
+:mod:`foundation.grid` (point ``[i, j, k]`` at ``-1 + (i, j, k) h``, canonical units). Per cell:
 
 1. Cull: a cell is processed only if the UDF at its lowest corner is at most ``cull h`` (2 h).
 2. Crossing test of every pair of its 8 corners (the 28 pairs: 12 edges, 12 face diagonals, 4 body
@@ -35,7 +35,7 @@ import numpy as np
 import trimesh
 from skimage.measure import marching_cubes as _skimage_marching_cubes
 
-from benchmark.grid import LOWER, ijk_axis_to_edge_index, spacing
+from foundation.grid import LOWER, ijk_axis_to_edge_index, spacing
 from methods.base import Extraction
 from methods.extractors.marching_cubes import empty_mesh
 
@@ -134,7 +134,7 @@ def _clean(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndar
 
 def edge_marching_cubes(udf: np.ndarray, grad: np.ndarray, snap: float, cull: float = 2.0,
                         near: float = 1.1) -> Extraction:
-    """GeoUDF's E-MC (module docstring) on the grid of :mod:`benchmark.grid`.
+    """GeoUDF's E-MC (module docstring) on the grid of :mod:`foundation.grid`.
 
     Parameters
     ----------

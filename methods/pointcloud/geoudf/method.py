@@ -33,7 +33,7 @@ of the patch).
 
 Query pool (:func:`query_pool`), the authors' ``scripts/sample.py``: ``budget.pool_samples`` points,
 10 % / 40 % / 50 % of them area-uniform surface points plus Gaussian noise of standard deviation
-0.05 / 0.02 / 0.003 authors' units (x 1.99 here); labels from :class:`benchmark.fields.ExactFields`:
+0.05 / 0.02 / 0.003 authors' units (x 1.99 here); labels from :class:`foundation.fields.ExactFields`:
 the distance d and the unit gradient (x - c) / |x - c| (c the closest point).
 
 Reconstruction (:meth:`GeoUDFMethod.reconstruct`), the authors' ``eval_rec.py``:
@@ -64,12 +64,12 @@ import numpy as np
 import torch
 from pykdtree.kdtree import KDTree
 
-from benchmark.fields import ExactFields
-from benchmark.grid import spacing
-from benchmark.params import Param, check_fields, setting
-from benchmark.seeding import training_streams
-from benchmark.surface import sample_surface
-from benchmark.timing import stage
+from foundation.fields import ExactFields
+from foundation.grid import spacing
+from foundation.params import Param, check_fields, setting
+from foundation.seeding import training_streams
+from foundation.surface import sample_surface
+from foundation.timing import stage
 from methods.base import Extraction, register_method
 from methods.core.budgets import register_budget_family
 from methods.core.device import get_device, seeded_generator
@@ -81,7 +81,7 @@ from methods.pointcloud.neighbourhoods import band_points, nearest_distance
 from methods.pointcloud.training_set import TrainingSet, TrainResult
 from methods.extractors.meshlab import current_mesh, oriented_point_set
 from methods.pointcloud.own_network import OwnNetworkMethod
-from benchmark.grid import point_inputs
+from foundation.grid import point_inputs
 from methods.core.training_loop import FittingError, run_steps
 
 __all__ = ["FRAME_SCALE", "QUERY_SIGMAS", "QUERY_RATIOS", "GeoUDFBudget", "GEOUDF_FAMILY",
@@ -210,7 +210,7 @@ def query_pool(vertices: np.ndarray, faces: np.ndarray, count: int, rng: np.rand
 def build_pools(shapes: Sequence, budget: GeoUDFBudget, seed: int) -> list[GeoUDFPool]:
     """The pools of every training shape: ``budget.pool_points`` input points, ``up_ratio x
     budget.points_per_item`` target points, ``budget.pool_samples`` labelled queries; shape i draws
-    from its stream of :func:`benchmark.seeding.training_streams`. Non-finite labels raise FittingError."""
+    from its stream of :func:`foundation.seeding.training_streams`. Non-finite labels raise FittingError."""
     if not shapes:
         raise FittingError("no training shapes")
     pools = []
@@ -303,7 +303,7 @@ def train_geoudf(method, shapes: Sequence, budget: GeoUDFBudget, seed: int = 0, 
     architecture, schedule, training set and cloud density).
 
     ``seed``: the pools, the initialisation (:func:`methods.core.device.seeded_generator`) and every
-    batch draw (:func:`benchmark.seeding.training_streams`): on the CPU the same seed gives the same
+    batch draw (:func:`foundation.seeding.training_streams`): on the CPU the same seed gives the same
     weights. ``progress(step=..., loss=..., total=pu_steps + rec_steps)`` every ``log_every`` steps.
     Returns a :class:`methods.pointcloud.training_set.TrainResult`: ``final_loss`` of stage 2, ``seconds``
     of both step loops, ``samples_per_s`` in training items (patches) per second."""

@@ -1,7 +1,7 @@
 """GIFS surface extraction: per-cube pair flags + UDF -> a triangle mesh (Ye et al., CVPR 2022;
 after the authors' ``models/generation.py``: ``combs_to_verts_glb_opt``, ``contrastive_marching_cubes``).
 
-Arrays in, arrays out; no network. A *cube* is a cell of the grid of :mod:`benchmark.grid`, named
+Arrays in, arrays out; no network. A *cube* is a cell of the grid of :mod:`foundation.grid`, named
 by its lower grid point ``(i, j, k)``, ``0 <= i, j, k <= N - 2``. Its 8 corners are numbered
 ``c = 4 di + 2 dj + dk`` (:data:`CORNERS`), its 28 corner pairs (the 12 edges, the 12 face
 diagonals and the 4 body diagonals) ``p = 0..27`` in :data:`CORNER_PAIRS` order (lexicographic
@@ -34,7 +34,7 @@ import itertools
 
 import numpy as np
 
-from benchmark.grid import LOWER, ijk_axis_to_edge_index, spacing
+from foundation.grid import LOWER, ijk_axis_to_edge_index, spacing
 from methods.base import Extraction
 from methods.extractors.mesh_ops import drop_unreferenced_vertices
 from methods.extractors.marching_cubes import empty_mesh, skimage_marching_cubes
@@ -86,14 +86,14 @@ def local_marching_cubes(cubes: np.ndarray, corner_values: np.ndarray, N: int) -
     nearest of the cube's edges whose corners change sign, at the fraction ``v_a / (v_a - v_b)``
     from its lower corner a, recomputed in float64 from the values (scikit-image's float32
     positions differ in the last bits between cubes), and the vertices on one grid edge (numbered
-    by :func:`benchmark.grid.ijk_axis_to_edge_index`) are welded into one.
+    by :func:`foundation.grid.ijk_axis_to_edge_index`) are welded into one.
 
     Parameters
     ----------
     cubes : (C, 3) int lower grid points of the cubes, in [0, N - 2].
     corner_values : (C, 8) float signed corner values, :data:`CORNERS` order (no zeros: a zero
         counts as positive).
-    N : grid points per axis of :mod:`benchmark.grid`.
+    N : grid points per axis of :mod:`foundation.grid`.
 
     Returns
     -------
@@ -158,7 +158,7 @@ def flag_split_marching_cubes(cubes: np.ndarray, flags: np.ndarray, corner_udf: 
     cubes : (C, 3) int lower grid points of the cubes, in [0, N - 2].
     flags : (C, 28) pair flags (:data:`CORNER_PAIRS` order), ~1 where the surface separates the pair.
     corner_udf : (C, 8) unsigned distances (canonical units) of the corners (:data:`CORNERS` order).
-    N : grid points per axis (:mod:`benchmark.grid`).
+    N : grid points per axis (:mod:`foundation.grid`).
     flag_threshold : a cube holds surface only where some flag exceeds it (the authors' 0.5).
 
     Returns

@@ -39,11 +39,11 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
-from benchmark.grid import LOWER, spacing
-from benchmark.params import Param, check_fields, setting
-from benchmark.seeding import training_streams
-from benchmark.sampler import group_counts
-from benchmark.timing import stage
+from foundation.grid import LOWER, spacing
+from foundation.params import Param, check_fields, setting
+from foundation.seeding import training_streams
+from foundation.sampler import group_counts
+from foundation.timing import stage
 from methods.base import Extraction, register_method
 from methods.core.budgets import register_budget_family
 from methods.core.device import get_device, seeded_generator
@@ -117,8 +117,8 @@ GIFS_FAMILY = register_budget_family("gifs", (
 # --------------------------------------------------------------------------------------------------
 
 def draw_pairs(flag: np.ndarray, group: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
-    """Rows of ``count`` training pairs: per sampler group (:data:`benchmark.sampler.GROUPS`) its share
-    of ``count`` (:func:`benchmark.sampler.group_counts`), half of it from the group's separated
+    """Rows of ``count`` training pairs: per sampler group (:data:`foundation.sampler.GROUPS`) its share
+    of ``count`` (:func:`foundation.sampler.group_counts`), half of it from the group's separated
     pairs (``flag`` > 0.5) and half from the others, each half without replacement when there are
     enough rows, else with; a half whose kind the group lacks is drawn from the other kind, a group
     the pool lacks from the whole pool. ``flag``, ``group``: (M,) of the pool."""
@@ -169,7 +169,7 @@ def train_gifs(method, shapes: Sequence, budget: GIFSBudget, seed: int = 0, devi
     item clouds and training pools).
 
     ``seed``: the pools, the network's initialisation (:func:`methods.core.device.seeded_generator`) and
-    every batch draw (:func:`benchmark.seeding.training_streams`); on the CPU the same seed gives the same
+    every batch draw (:func:`foundation.seeding.training_streams`); on the CPU the same seed gives the same
     weights. ``progress(step=..., loss=..., total=steps)`` every ``log_every`` steps. Returns a
     :class:`methods.pointcloud.training_set.TrainResult` (model in eval mode)."""
     device = get_device(device)
@@ -284,7 +284,7 @@ class GIFSMethod(OwnNetworkMethod):
 
     def training_targets(self, fields, samples) -> dict[str, np.ndarray]:
         """Per segment (u, v): flag (the segment hits the mesh, 0/1), the UDF of u and of v, and the
-        sampler group (index into :data:`benchmark.sampler.GROUPS`)."""
+        sampler group (index into :data:`foundation.sampler.GROUPS`)."""
         u, v = samples.segments[:, 0], samples.segments[:, 1]
         hit, _, _ = fields.segments(u, v)
         return {"flag": hit.astype(np.float32), "udf_u": fields.udf(u).astype(np.float32),

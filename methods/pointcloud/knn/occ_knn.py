@@ -24,15 +24,15 @@ import numpy as np
 from scipy.special import expit
 import torch.nn.functional as F
 
-from benchmark.grid import spacing
-from benchmark.timing import stage
+from foundation.grid import spacing
+from foundation.timing import stage
 from methods.base import Extraction, register_method
 from methods.pointcloud.knn.method import KNNTrainedMethod
 from methods.pointcloud.knn.query import evaluate_knn, knn_k
 from methods.pointcloud.neighbourhoods import band_points
 from methods.extractors.marching_cubes import far_occupancy, marching_cubes_grid
-from benchmark.params import Param
-from benchmark.grid import point_inputs
+from foundation.params import Param
+from foundation.grid import point_inputs
 
 
 @register_method(order=120, color="#17becf",

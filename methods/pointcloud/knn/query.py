@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from benchmark.timing import stage
+from foundation.timing import stage
 from methods.pointcloud.neighbourhoods import knn_neighbourhoods
 
 #: Queries per forward pass, by device type. Each query carries K point features through the

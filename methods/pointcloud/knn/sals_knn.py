@@ -15,9 +15,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import expit
 
-from benchmark.grid import edge_inputs, spacing
-from benchmark.params import Param
-from benchmark.timing import stage
+from foundation.grid import edge_inputs, spacing
+from foundation.params import Param
+from foundation.timing import stage
 from methods.base import Extraction, register_method
 from methods.core.segment_field import nearer_endpoint_normals, segment_loss, segment_targets
 from methods.extractors.edc import edge_dual_contouring

@@ -21,7 +21,7 @@ back in eval mode with ``knn_k`` set (the K the grid queries need, :mod:`methods
 
 Seeding: ``seed`` seeds torch's generator before the network is built (its initialisation,
 :func:`methods.core.device.seeded_generator`, which also turns on deterministic algorithms on the CPU)
-and the batch Generator of :func:`benchmark.seeding.training_streams` (shapes, clouds, samples of
+and the batch Generator of :func:`foundation.seeding.training_streams` (shapes, clouds, samples of
 every step); pools built inside :func:`train` use the same ``seed``. On the CPU the same seed gives
 the same weights bit for bit (same thread count; the KD-tree is exact and deterministic).
 
@@ -37,8 +37,8 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
-from benchmark.params import Param, check_fields, setting
-from benchmark.seeding import training_streams
+from foundation.params import Param, check_fields, setting
+from foundation.seeding import training_streams
 from datasets import Shape
 from methods.core.budgets import budget_values, register_budget_family
 from methods.core.device import get_device, seeded_generator
@@ -201,7 +201,7 @@ def train(method, shapes: Sequence[Shape], budget: str | KNNBudget, seed: int = 
 
 
 # --------------------------------------------------------------------------------------------------
-# Weights as bytes (the run layer stores them checksummed, benchmark.storage)
+# Weights as bytes (the run layer stores them checksummed, foundation.storage)
 # --------------------------------------------------------------------------------------------------
 
 def knn_model_to_bytes(model, budget: str | KNNBudget, method_name: str, final_loss: float) -> bytes:

@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from benchmark.grid import point_inputs, spacing
-from benchmark.params import Param
-from benchmark.timing import stage
+from foundation.grid import point_inputs, spacing
+from foundation.params import Param
+from foundation.timing import stage
 from methods.base import Extraction, register_method
 from methods.extractors.meshudf import meshudf_marching_cubes
 from methods.pointcloud.knn.query import evaluate_knn, knn_k

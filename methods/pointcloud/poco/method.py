@@ -38,12 +38,12 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from benchmark.grid import LOWER, spacing
-from benchmark.params import Param, check_fields, setting
-from benchmark.sampler import GROUPS
-from benchmark.timing import stage
-from benchmark.grid import point_inputs
-from benchmark.seeding import training_streams
+from foundation.grid import LOWER, spacing
+from foundation.params import Param, check_fields, setting
+from foundation.sampler import GROUPS
+from foundation.timing import stage
+from foundation.grid import point_inputs
+from foundation.seeding import training_streams
 from methods.base import Extraction, register_method
 from methods.core.budgets import register_budget_family
 from methods.core.device import get_device, seeded_generator
@@ -159,7 +159,7 @@ def train_poco(method, shapes: Sequence, budget: POCOBudget, seed: int = 0, devi
     and training pools).
 
     ``seed``: the pools, the network's initialisation (:func:`methods.core.device.seeded_generator`) and
-    every batch draw (:func:`benchmark.seeding.training_streams`); on the CPU the same seed gives the same
+    every batch draw (:func:`foundation.seeding.training_streams`); on the CPU the same seed gives the same
     weights. ``progress(step=..., loss=..., total=steps)`` every ``log_every`` steps. Returns a
     :class:`methods.pointcloud.training_set.TrainResult` (model in eval mode)."""
     device = get_device(device)

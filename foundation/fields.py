@@ -25,11 +25,11 @@ Definitions (p a point, M the mesh)
   towards +e_a, t- towards -e_a), +inf where the line hits nothing; and the side of that hit (+1
   towards +e_a, -1 towards -e_a, ties -1, 0 for no hit).
 
-Grid conventions (benchmark.grid)
+Grid conventions (foundation.grid)
 --------------------------------
 * Grid edges (:meth:`ExactFields.grid_edges`): no ray per edge. For every axis the 3 N^2 grid lines
   are intersected with all triangles at once by rasterising each triangle's projection onto the
-  plane across the axis (:func:`benchmark.raster.grid_line_hits`: exact float64 2D edge functions,
+  plane across the axis (:func:`foundation.raster.grid_line_hits`: exact float64 2D edge functions,
   a vectorised segment-triangle test). Convention: triangles are *closed* (a line through a triangle's edge or
   vertex hits it); a line parallel to a triangle's plane (zero projected area) never hits it, so a
   line lying inside a face only hits the faces it crosses. A hit exactly at a grid point (within
@@ -37,7 +37,7 @@ Grid conventions (benchmark.grid)
   Per edge the hit with the smallest tau is kept; ties (hits within 1e-9 in tau, e.g. the two
   triangles of a shared mesh edge) go to the smallest face index. Duplicates therefore never matter.
 * Grid orthogonal distances (:meth:`ExactFields.grid_orthogonal_distances`): the grid points lie on
-  the grid lines, so the hits along axis a are those of :func:`benchmark.raster.grid_line_hits`
+  the grid lines, so the hits along axis a are those of :func:`foundation.raster.grid_line_hits`
   (rule 'closed'), exact in float64; a hit within 1e-10 of a grid point may count as the other side.
 * Grid occupancy / SDF sign: for a *closed chain* (every undirected edge, after welding exactly equal
   positions, is used equally often in both directions: closed meshes and soups of closed meshes,
@@ -59,10 +59,10 @@ from __future__ import annotations
 import igl
 import numpy as np
 
-from benchmark.grid import EdgeField, axis_coords, ijk_axis_to_edge_index, num_edges, spacing
-from benchmark.raster import closed_chain_winding_number, grid_line_hits
+from foundation.grid import EdgeField, axis_coords, ijk_axis_to_edge_index, num_edges, spacing
+from foundation.raster import closed_chain_winding_number, grid_line_hits
 
-#: Version of the field definitions; part of every cache key of :mod:`benchmark.field_cache`
+#: Version of the field definitions; part of every cache key of :mod:`foundation.field_cache`
 #: (bump when a convention changes).
 FIELDS_VERSION = "fields-v1"
 
@@ -323,7 +323,7 @@ class ExactFields:
 
     # ------------------------------------------------------------------ grid fields
     def grid_edges(self, N: int) -> EdgeField:
-        """Segment field of all 3 (N - 1) N^2 grid edges (flat edge order of benchmark.grid).
+        """Segment field of all 3 (N - 1) N^2 grid edges (flat edge order of foundation.grid).
 
         Per edge: the hit nearest the lower endpoint u (first hit from u towards v), s = 1 - tau and
         that triangle's unit normal. Computed from all line/triangle intersections of the 3 N^2 grid
@@ -443,7 +443,7 @@ class ExactFields:
         return np.where(np.isfinite(d), d, band).astype(np.float32), grad.copy()
 
     def grid_scalar(self, N: int, kind: str, band: float | None = None) -> np.ndarray:
-        """A scalar field on the grid points, (N, N, N) float32, 'ij' order (benchmark.grid).
+        """A scalar field on the grid points, (N, N, N) float32, 'ij' order (foundation.grid).
 
         kind 'occupancy' (1 inside, 0 outside; exact everywhere), 'udf' (exact where d < band,
         else band) or 'sdf' (same magnitude, negative inside; sign exact everywhere).
@@ -481,7 +481,7 @@ def _nearest_hits_on_lines(line: np.ndarray, x: np.ndarray, N: int) -> tuple[np.
 
     ``line`` (H,) line ids, ``x`` (H,) hit coordinates along the lines. Returns (forward, backward),
     each (N^2, N) float64: x_hit - c for the first hit with x_hit >= c, c - x_hit for the last
-    with x_hit <= c (c the point's coordinate, :func:`benchmark.grid.axis_coords`), +inf if none.
+    with x_hit <= c (c the point's coordinate, :func:`foundation.grid.axis_coords`), +inf if none.
     Points and hits are ordered together by the key line * span + x (span > the range of x).
     """
     coords = axis_coords(N)

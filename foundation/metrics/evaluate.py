@@ -10,14 +10,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from benchmark.metrics.distances import edge_metrics, spatial_order, surface_metrics
-from benchmark.metrics.edges import EdgeSearchTooDense, sharp_edge_points
-from benchmark.metrics.iou import IOU_POINTS, volumetric_iou
-from benchmark.metrics.presets import MetricPreset, get_preset
-from benchmark.metrics.self_intersections import self_intersections
-from benchmark.metrics.validity import mesh_validity
-from benchmark.surface import MIN_RELATIVE_AREA, binary_exponent, relative_area, sample_surface
-from benchmark.timing import StageTimer
+from foundation.metrics.distances import edge_metrics, spatial_order, surface_metrics
+from foundation.metrics.edges import EdgeSearchTooDense, sharp_edge_points
+from foundation.metrics.iou import IOU_POINTS, volumetric_iou
+from foundation.metrics.presets import MetricPreset, get_preset
+from foundation.metrics.self_intersections import self_intersections
+from foundation.metrics.validity import mesh_validity
+from foundation.surface import MIN_RELATIVE_AREA, binary_exponent, relative_area, sample_surface
+from foundation.timing import StageTimer
 
 __all__ = ["evaluate", "floor"]
 
@@ -152,7 +152,7 @@ def evaluate(
         GT samples come from child 0, prediction samples from child 1 and the IoU's points from
         child 2 of ``SeedSequence(seed)``
         for an int, or of the SeedSequence itself (the run layer passes
-        ``benchmark.seeding.job_streams(shape_hash, seed).metrics``), rebuilt from its state first so
+        ``foundation.seeding.job_streams(shape_hash, seed).metrics``), rebuilt from its state first so
         its earlier spawns do not matter.
     n_points : int, optional
         Samples per mesh (default: the preset's).
@@ -166,19 +166,19 @@ def evaluate(
         Flat, raw (unscaled) values in the preset's frame: ``cd, cd_gt_to_pred, cd_pred_to_gt, nc``,
         ``f1_*/precision_*/recall_*`` per threshold, ``dist_median, dist_p90, dist_p99,
         hausdorff`` (the distribution of CD's nearest distances, both directions pooled:
-        :func:`~benchmark.metrics.distances.distance_distribution`), ``iou`` (volumetric IoU on
-        min(:data:`~benchmark.metrics.iou.IOU_POINTS`, n) points, :func:`~benchmark.metrics.iou.volumetric_iou`;
+        :func:`~foundation.metrics.distances.distance_distribution`), ``iou`` (volumetric IoU on
+        min(:data:`~foundation.metrics.iou.IOU_POINTS`, n) points, :func:`~foundation.metrics.iou.volumetric_iou`;
         NaN unless the GT and the prediction are both watertight with no dropped face),
         ``ecd, ef1, eprecision, erecall, ecd_flag``,
         ``gt_edge_points, pred_edge_points`` (counts; -1 = not computed), ``edge_search_skipped``
         ('' or why the exact edge search was refused, :class:`EdgeSearchTooDense`: ECD/EF1 are then
         NaN; happens for samples far denser than r, e.g. a prediction 100x smaller than the GT),
         ``empty_prediction`` (no usable face, or its faces lie on a line or a point: total area
-        below :data:`~benchmark.surface.MIN_RELATIVE_AREA` of its own bounding box's largest side
+        below :data:`~foundation.surface.MIN_RELATIVE_AREA` of its own bounding box's largest side
         squared, whatever its size; distance metrics NaN, F1 0), ``dropped_faces`` (faces with
         out-of-range indices or non-finite vertices, excluded from sampling), the validity columns
         of the prediction as given (:func:`mesh_validity`, with ``euler_characteristic`` and
-        ``genus``), its self-intersections (:func:`~benchmark.metrics.self_intersections.self_intersections`:
+        ``genus``), its self-intersections (:func:`~foundation.metrics.self_intersections.self_intersections`:
         ``self_intersecting_pairs, self_intersecting_faces``, NaN for an empty prediction, and
         ``self_intersections_skipped``, '' or why they were not searched), the protocol: ``preset, n_points,
         seed`` (the int, or the SeedSequence's state as a string), ``gt_diagonal, edge_radius,

@@ -1,6 +1,6 @@
 """Exact line-triangle rasterisation: every grid line (or -x ray) against every triangle, in float64.
 
-The core of the exact grid fields of :mod:`benchmark.fields`: instead of one ray per grid edge, each triangle is projected
+The core of the exact grid fields of :mod:`foundation.fields`: instead of one ray per grid edge, each triangle is projected
 onto the plane across an axis and tested against the lines through the grid points inside its
 projected bounding box, all (triangle, line) pairs of a batch at once.
 
@@ -31,7 +31,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from benchmark.grid import axis_coords, spacing
+from foundation.grid import axis_coords, spacing
 
 #: Candidate (triangle, line) pairs per rasterisation batch (bounds peak memory).
 RASTER_BATCH = 2_000_000
@@ -130,7 +130,7 @@ def closed_chain_winding_number(vertices, faces, points, cells: int | None = Non
     compiled loop with the arithmetic of :func:`_line_triangle_test`. ``axis`` None (default): the
     axis with the fewest candidate (triangle, point) pairs (:func:`_candidate_pairs`); off the
     surface every axis gives the same numbers. Only valid for closed chains (see
-    :attr:`benchmark.fields.ExactFields.is_closed_chain`); a point exactly on the surface gets one
+    :attr:`foundation.fields.ExactFields.is_closed_chain`); a point exactly on the surface gets one
     side, which may depend on the axis. Returns (P,) int64.
     """
     P = np.asarray(points, dtype=np.float64)

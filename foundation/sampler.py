@@ -16,9 +16,9 @@ space      0.02      uniform in [-1, 1]^3                         0.08
 Point-based fields (BOF, SDF, UDF) train on ``x = c + e``; SALS trains on segments
 ``(u, v) = (c + e1, c + e2)`` with ``u == x``: the first endpoint of every segment is exactly the
 point the point-based methods get. Surface centres are drawn by the project's one surface sampler
-(:func:`benchmark.surface.sample_surface`). Every draw comes from the one ``numpy.random.Generator``
+(:func:`foundation.surface.sample_surface`). Every draw comes from the one ``numpy.random.Generator``
 the caller passes: the run layer passes ``job_streams(shape_hash, seed).sampler_rng()``
-(:mod:`benchmark.seeding`), so the same (shape, seed) gives the same samples for every method.
+(:mod:`foundation.seeding`), so the same (shape, seed) gives the same samples for every method.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from benchmark.surface import sample_surface
+from foundation.surface import sample_surface
 
 #: (name, fraction of M, centre kind, sigma) for the five groups of the paper.
 GROUPS: tuple[tuple[str, float, str, float], ...] = (
@@ -86,7 +86,7 @@ def sample_training_data(vertices: np.ndarray, faces: np.ndarray, total: int, rn
         M, the number of centres (= points = segments).
     rng : numpy.random.Generator
         The one source of every draw, in this order: the surface centres of the three surface
-        groups (:func:`benchmark.surface.sample_surface`), the bbox centres, the space centres,
+        groups (:func:`foundation.surface.sample_surface`), the bbox centres, the space centres,
         then the noise ``e1`` and ``e2``.
 
     Returns

@@ -6,10 +6,10 @@ One :class:`numpy.random.SeedSequence` per (shape, seed)::
     sampler, fitting, metrics, calibration = root.spawn(4)
 
 * ``sampler`` -> the ``numpy.random.Generator`` of the shared training sampler
-  (:mod:`benchmark.sampler`): every method of a shape and seed sees the same samples.
+  (:mod:`foundation.sampler`): every method of a shape and seed sees the same samples.
 * ``fitting`` -> a 63-bit integer for ``torch.manual_seed`` and the batch-order generator
   (:mod:`methods.core.fitting`): network initialisation and batch order.
-* ``metrics`` -> the SeedSequence :func:`benchmark.metrics.evaluate` spawns its streams from
+* ``metrics`` -> the SeedSequence :func:`foundation.metrics.evaluate` spawns its streams from
   (child 0: GT samples, child 1: prediction samples, child 2: the IoU's points), so every
   prediction of a shape and the floor row are scored against the same GT samples.
 * ``calibration`` -> the generator of a method's calibration after its fit
@@ -21,7 +21,7 @@ from its training seed alone: ``pools, batches = SeedSequence(seed).spawn(2)``
 (:func:`training_streams`); training shape i of n labels its pools from ``pools.spawn(n)[i]``, and
 every batch draw comes from one Generator of ``batches``.
 
-The shape enters by its content hash (``benchmark.storage.mesh_hash``), never by its name or position,
+The shape enters by its content hash (``foundation.storage.mesh_hash``), never by its name or position,
 so results do not depend on the order of shapes, the executor or the process.
 """
 

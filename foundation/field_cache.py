@@ -1,14 +1,14 @@
 """Disk cache of the exact grid fields, keyed by (mesh hash, N, kind).
 
-A :class:`FieldCache` serves the four oracle grid fields of an :class:`benchmark.fields.ExactFields`
+A :class:`FieldCache` serves the four oracle grid fields of an :class:`foundation.fields.ExactFields`
 (each costly to compute at N = 128) from one folder. The caller chooses the folder: the run layer
-passes ``benchmark.storage.cache_root(...) / "fields"`` (the one cache-root rule), ``None`` turns
+passes ``foundation.storage.cache_root(...) / "fields"`` (the one cache-root rule), ``None`` turns
 caching off.
 
 Entries
 -------
 One file per (mesh, N, kind, band): ``<cache_key(...)>.npz`` in the cache folder. The file is a
-checksummed entry of :mod:`benchmark.storage` (written atomically by ``write_checked``) whose
+checksummed entry of :mod:`foundation.storage` (written atomically by ``write_checked``) whose
 payload is an ``np.savez_compressed`` archive; grid edges are stored sparse (hit edges only).
 A file whose checksum fails -- damaged bytes, a truncated write, a file written without a checksum --
 or whose payload is not the expected archive is counted in ``stats.rejected``, recomputed and
@@ -26,10 +26,10 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from benchmark.fields import FIELDS_VERSION, ExactFields, default_band
-from benchmark.grid import EdgeField, num_edges
-from benchmark.registry import Registry
-from benchmark.storage import CacheStats, CorruptEntry, mesh_hash, read_checked, write_checked
+from foundation.fields import FIELDS_VERSION, ExactFields, default_band
+from foundation.grid import EdgeField, num_edges
+from foundation.registry import Registry
+from foundation.storage import CacheStats, CorruptEntry, mesh_hash, read_checked, write_checked
 
 __all__ = ["FieldCache", "cache_key", "CACHE_KINDS"]
 
@@ -37,7 +37,7 @@ __all__ = ["FieldCache", "cache_key", "CACHE_KINDS"]
 def cache_key(mesh_hash: str, N: int, kind: str, band: float | None = None) -> str:
     """File stem of a cached field: mesh hash, N, kind, band (distance kinds) and FIELDS_VERSION.
 
-    ``band`` (canonical units) defaults to :func:`benchmark.fields.default_band` (N); it is part of
+    ``band`` (canonical units) defaults to :func:`foundation.fields.default_band` (N); it is part of
     the key of the distance kinds 'sdf' and 'udf_grad' only.
     """
     parts = [mesh_hash, f"N{N}", kind]
@@ -107,7 +107,7 @@ class FieldCache:
     directory : folder of the entries (created on the first write), or None: caching off (every
         :meth:`get` computes and nothing is written anywhere).
     stats : where hits (``'fields'``) and rejected corrupt entries are counted; default: a new
-        :class:`benchmark.storage.CacheStats`, available as ``self.stats``.
+        :class:`foundation.storage.CacheStats`, available as ``self.stats``.
     """
 
     def __init__(self, directory: str | os.PathLike | None, stats: CacheStats | None = None):
@@ -125,7 +125,7 @@ class FieldCache:
         """One exact grid field of ``fields`` at resolution N (see :data:`CACHE_KINDS` for the types).
 
         ``band``: narrow-band half width of the distance kinds (canonical units, default
-        :func:`benchmark.fields.default_band` (N)). A readable entry is returned (and counted as a
+        :func:`foundation.fields.default_band` (N)). A readable entry is returned (and counted as a
         hit); a missing one is computed and stored; a corrupt one is counted in ``stats.rejected``,
         recomputed and overwritten. Computed and cached values are identical arrays.
         """

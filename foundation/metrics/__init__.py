@@ -2,7 +2,7 @@
 
 Protocol (preset ``default``, all lengths in the canonical frame of the GT):
 
-* Sample ``n`` points area-uniformly on each mesh (:func:`benchmark.surface.sample_surface`), each
+* Sample ``n`` points area-uniformly on each mesh (:func:`foundation.surface.sample_surface`), each
   with the unit normal of the face it came from. GT and prediction use two independent streams spawned from one
   seed, so every prediction of a shape is scored against the same GT samples.
 * Nearest neighbours by KD-tree in both directions (pykdtree, exact): ``d(g -> P)`` for every GT
@@ -16,7 +16,7 @@ Protocol (preset ``default``, all lengths in the canonical frame of the GT):
   ``dist_median``, ``dist_p90``, ``dist_p99`` and ``hausdorff`` (the largest), unsquared.
 * **IoU** (both meshes watertight, else NaN): ``|inside both| / |inside either|`` over 100,000
   uniform points in the union of the two bounding boxes (child 2 of the seed), inside where
-  ``|winding number| > 1/2`` (libigl's fast winding number; :mod:`~benchmark.metrics.iou`).
+  ``|winding number| > 1/2`` (libigl's fast winding number; :mod:`~foundation.metrics.iou`).
 * **Sharp-edge points** (Neural Dual Contouring's test): a sample ``p`` is an edge point when a sample
   ``q`` of the same mesh lies within ``r`` of it (``|p - q| <= r``) with ``|n_p . n_q| < 0.2``;
   ``r = 0.004 D`` with ``D`` the GT bounding-box diagonal (:func:`sharp_edge_points`).
@@ -34,29 +34,29 @@ The raw values are returned (never scaled); :attr:`MetricPreset.report_scale` gi
 multipliers. Predictions that are empty or degenerate (no usable face, or faces that lie on a line
 or a point relative to their own size) never raise: their distance metrics are NaN, F1/EF1 are 0
 and ``empty_prediction`` is set. Any scale works (1e-300 to 1e300: exact power-of-two rescales,
-:mod:`benchmark.surface`). Mesh validity (vertex/face counts, boundary and non-manifold edges,
+:mod:`foundation.surface`). Mesh validity (vertex/face counts, boundary and non-manifold edges,
 components, watertightness, Euler characteristic, genus when watertight) is counted on the
 prediction's faces *as given*, vertices not merged (:func:`mesh_validity`); its self-intersecting
 face pairs by libigl's exact search (:func:`self_intersections`). A prediction without a GT (a point
 cloud reconstructed with no mesh beside it) gets only those counts, ``scored`` False
 (:func:`evaluate_without_gt`).
 
-Modules: :mod:`~benchmark.metrics.presets` (protocols as data), :mod:`~benchmark.metrics.distances`
-(CD, NC, F1, ECD, EF1 on point sets), :mod:`~benchmark.metrics.edges` (sharp-edge points),
-:mod:`~benchmark.metrics.validity` (topology counts), :mod:`~benchmark.metrics.self_intersections`,
-:mod:`~benchmark.metrics.iou` (volumetric IoU), :mod:`~benchmark.metrics.evaluate` (meshes
-in, one result row out), ``__main__`` (the command line: ``python -m benchmark.metrics GT PRED
+Modules: :mod:`~foundation.metrics.presets` (protocols as data), :mod:`~foundation.metrics.distances`
+(CD, NC, F1, ECD, EF1 on point sets), :mod:`~foundation.metrics.edges` (sharp-edge points),
+:mod:`~foundation.metrics.validity` (topology counts), :mod:`~foundation.metrics.self_intersections`,
+:mod:`~foundation.metrics.iou` (volumetric IoU), :mod:`~foundation.metrics.evaluate` (meshes
+in, one result row out), ``__main__`` (the command line: ``python -m foundation.metrics GT PRED
 [--points N] [--preset default|ndc] [--seed S] [--json] [--no-normalize]``).
 """
 
-from benchmark.metrics.distances import (distance_distribution, edge_metrics, nearest_distances, spatial_order,
+from foundation.metrics.distances import (distance_distribution, edge_metrics, nearest_distances, spatial_order,
                                          surface_metrics)
-from benchmark.metrics.edges import MAX_EDGE_PAIRS, EdgeSearchTooDense, sharp_edge_points
-from benchmark.metrics.evaluate import evaluate, evaluate_without_gt, floor
-from benchmark.metrics.iou import IOU_POINTS, volumetric_iou
-from benchmark.metrics.presets import PRESETS, HeadlineMetric, MetricPreset, f1_column
-from benchmark.metrics.self_intersections import self_intersections
-from benchmark.metrics.validity import mesh_validity
+from foundation.metrics.edges import MAX_EDGE_PAIRS, EdgeSearchTooDense, sharp_edge_points
+from foundation.metrics.evaluate import evaluate, evaluate_without_gt, floor
+from foundation.metrics.iou import IOU_POINTS, volumetric_iou
+from foundation.metrics.presets import PRESETS, HeadlineMetric, MetricPreset, f1_column
+from foundation.metrics.self_intersections import self_intersections
+from foundation.metrics.validity import mesh_validity
 
 __all__ = [
     "MetricPreset",

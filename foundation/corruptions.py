@@ -2,9 +2,9 @@
 
 Seventeen names (:data:`CORRUPTIONS`, in this order):
 
-* ``uniform`` -- area-uniform samples of the mesh (:func:`benchmark.surface.sample_surface`), as the
+* ``uniform`` -- area-uniform samples of the mesh (:func:`foundation.surface.sample_surface`), as the
   point-cloud task has always drawn them (the same points for the same generator);
-* ``scan`` -- a clean virtual range scan (:func:`benchmark.scanner.scan_cloud`; setup in
+* ``scan`` -- a clean virtual range scan (:func:`foundation.scanner.scan_cloud`; setup in
   ``LEVELS["scan"]``: 10 sensors on a Fibonacci sphere about the origin at 3.0 canonical units,
   grazing hits beyond 85 deg dropped);
 * ``<kind>-<level>``, kind in ``noise, outliers, missing, density, misalign`` and level in 1, 2, 3:
@@ -48,9 +48,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from benchmark.scanner import Scan, scan_cloud, sphere_sensors
-from benchmark.seeding import job_streams
-from benchmark.surface import sample_surface
+from foundation.scanner import Scan, scan_cloud, sphere_sensors
+from foundation.seeding import job_streams
+from foundation.surface import sample_surface
 
 __all__ = ["Corruption", "CORRUPTIONS", "KINDS", "LEVELS", "Cloud", "parse_corruption", "input_cloud",
            "UniformSampling", "ScanSetup", "NoiseLevel", "OutlierLevel", "MissingLevel", "DensityLevel",
@@ -66,14 +66,14 @@ CORRUPTIONS: tuple[str, ...] = ("uniform", "scan") + tuple(f"{k}-{lv}" for k in 
 # ------------------------------------------------------------------------------------- the levels
 @dataclass(frozen=True)
 class UniformSampling:
-    """``uniform``: :func:`benchmark.surface.sample_surface` (no parameters)."""
+    """``uniform``: :func:`foundation.surface.sample_surface` (no parameters)."""
 
 
 @dataclass(frozen=True)
 class ScanSetup:
     """The virtual scanner every scan-based corruption starts from.
 
-    sensors: number of sensors (Fibonacci sphere, :func:`benchmark.scanner.sphere_sensors`);
+    sensors: number of sensors (Fibonacci sphere, :func:`foundation.scanner.sphere_sensors`);
     distance: their distance from the origin, as a fraction of the largest side (3.0 / 1.99: 3.0
     canonical units); grazing_dropout_deg: hits beyond this angle to the normal are dropped.
     """
@@ -384,7 +384,7 @@ def input_point_cloud(shape, n: int, noise: float, seed: int,
     """(points (P, 3), sensors (P, 3) or None): the reconstruct task's input cloud of a job. The
     shape's own cloud and sensors (a dataset of point-cloud files), else ``n`` points of the GT
     surface made as ``corruption`` names (:func:`input_cloud`), on the job's sampler stream
-    (:func:`benchmark.seeding.job_streams` of the shape's content hash and ``seed``: the same cloud
+    (:func:`foundation.seeding.job_streams` of the shape's content hash and ``seed``: the same cloud
     for every method of a (shape, seed, corruption)); plus Gaussian noise of sigma ``noise``
     (canonical units) from the same stream; no normals."""
     rng = job_streams(shape.content_hash, seed).sampler_rng()

@@ -1,8 +1,8 @@
 """Area-uniform samples on a triangle mesh and its scale-free area: the project's one owner of
 "a point on the mesh" and of "this mesh has no area".
 
-The metrics (:mod:`benchmark.metrics`) and the training sampler
-(:mod:`benchmark.sampler`) both draw their surface points with
+The metrics (:mod:`foundation.metrics`) and the training sampler
+(:mod:`foundation.sampler`) both draw their surface points with
 :func:`sample_surface`; mesh validation (:mod:`datasets.io`) and the metrics' empty-prediction
 test both call a mesh degenerate by :func:`relative_area` and :data:`MIN_RELATIVE_AREA`.
 
@@ -105,7 +105,7 @@ def sample_surface(vertices: np.ndarray, faces: np.ndarray, n: int, rng: np.rand
     Raises
     ------
     TypeError
-        When ``rng`` is not a Generator (seeds become generators in :mod:`benchmark.seeding` only).
+        When ``rng`` is not a Generator (seeds become generators in :mod:`foundation.seeding` only).
     ValueError
         When the mesh has no face of positive finite area.
     """

@@ -1,8 +1,8 @@
-"""Command line: ``python -m benchmark.metrics GT PRED [--points N] [--preset default|ndc|scene]
+"""Command line: ``python -m foundation.metrics GT PRED [--points N] [--preset default|ndc|scene]
 [--seed S] [--json] [--no-normalize]`` scores one predicted mesh file against a GT mesh file.
 
 The prediction is data: whatever its file holds (no faces, NaN vertices, out-of-range indices,
-faces on a line) is scored as :func:`~benchmark.metrics.evaluate` scores it (NaN plus flags) and
+faces on a line) is scored as :func:`~foundation.metrics.evaluate` scores it (NaN plus flags) and
 printed, exit status 0. Exit status 2, with one line on stderr, is for what is not data: bad flags,
 a GT that cannot be scored against, a file that is missing or not a readable mesh file.
 """
@@ -14,9 +14,9 @@ import sys
 
 import numpy as np
 
-from benchmark.metrics.evaluate import evaluate
-from benchmark.metrics.presets import PRESETS, MetricPreset
-from benchmark.serialize import dumps
+from foundation.metrics.evaluate import evaluate
+from foundation.metrics.presets import PRESETS, MetricPreset
+from foundation.serialize import dumps
 from datasets.io import MeshError, canonical_transform, read_mesh_arrays, read_mesh_file
 
 
@@ -57,7 +57,7 @@ def _format_table(result: dict, preset: MetricPreset, frame_note: str) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
-        prog="python -m benchmark.metrics", description="Score a predicted mesh against a GT mesh."
+        prog="python -m foundation.metrics", description="Score a predicted mesh against a GT mesh."
     )
     parser.add_argument("gt", help="ground-truth mesh file")
     parser.add_argument("pred", help="predicted mesh file")

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
-from benchmark.registry import Registry
+from foundation.registry import Registry
 
 __all__ = ["HeadlineMetric", "f1_column", "MetricPreset", "DEFAULT", "NDC", "SCENE", "PRESETS", "get_preset"]
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from benchmark.surface import binary_exponent
+from foundation.surface import binary_exponent
 
 __all__ = ["volumetric_iou", "IOU_POINTS"]
 
@@ -39,7 +39,7 @@ def volumetric_iou(gt_vertices, gt_faces, pred_vertices, pred_faces, rng: np.ran
     """``|inside both| / |inside either|`` over ``n_points`` uniform points in the union of the two
     meshes' bounding boxes (of their used vertices), inside by ray parity.
 
-    Both meshes must be closed (the caller checks: :func:`benchmark.metrics.mesh_validity`'s
+    Both meshes must be closed (the caller checks: :func:`foundation.metrics.mesh_validity`'s
     ``watertight``), with in-range indices and finite vertices, so a ray's crossing parity is
     well defined (and does not depend on the orientation). Any scale:
     both meshes are rescaled by one power of two first (exact). Identical meshes (the floor) are

@@ -1,6 +1,6 @@
 """Distance metrics between point sets: CD, NC, F1 and the distribution of the nearest distances
 (median, p90, p99, Hausdorff) on surface samples and ECD, EF1 on sharp-edge points, each in the
-form its :class:`~benchmark.metrics.presets.MetricPreset` states. Nearest neighbours are exact
+form its :class:`~foundation.metrics.presets.MetricPreset` states. Nearest neighbours are exact
 (pykdtree, k = 1)."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ from __future__ import annotations
 import numpy as np
 from pykdtree.kdtree import KDTree
 
-from benchmark.metrics.presets import MetricPreset, get_preset
-from benchmark.surface import binary_exponent
+from foundation.metrics.presets import MetricPreset, get_preset
+from foundation.surface import binary_exponent
 
 __all__ = ["spatial_order", "nearest_distances", "distance_distribution", "surface_metrics", "edge_metrics"]
 
@@ -35,7 +35,7 @@ def nearest_distances(query: np.ndarray, reference: np.ndarray) -> tuple[np.ndar
     """Euclidean distance from every query point to its nearest reference point, and its index.
 
     Exact k = 1 search with pykdtree (multi-threaded, deterministic), on both sets rescaled by one
-    power of two (:func:`benchmark.surface.binary_exponent`: exact, so the distances equal the
+    power of two (:func:`foundation.surface.binary_exponent`: exact, so the distances equal the
     unscaled ones, and squared distances of points at 1e300 do not overflow).
 
     Parameters

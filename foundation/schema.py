@@ -73,7 +73,7 @@ JOB_COLUMNS: tuple[Column, ...] = (
     _c("used_sensors", "INTEGER", "setup", "sensors", csv=True),
     _c("seen_in_training", "INTEGER", "setup", "seen in training", csv=True),
     # added after the columns above: declared here so that the earlier results.csv lead columns keep
-    # their positions (benchmark.metrics: distance distribution, volumetric IoU, topology, self-intersections)
+    # their positions (foundation.metrics: distance distribution, volumetric IoU, topology, self-intersections)
     _c("iou", "REAL", "metric", csv=True),
     _c("dist_median", "REAL", "metric", csv=True),
     _c("dist_p90", "REAL", "metric", csv=True),

@@ -17,7 +17,7 @@ from __future__ import annotations
 import igl.predicates
 import numpy as np
 
-from benchmark.surface import binary_exponent
+from foundation.surface import binary_exponent
 
 __all__ = ["self_intersections", "MAX_SELF_INTERSECTION_FACES", "PROBE_FACES", "MAX_SELF_INTERSECTION_PAIRS"]
 
