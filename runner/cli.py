@@ -212,19 +212,16 @@ def typed_settings(config: RunConfig) -> RunConfig:
     if not (config.budget_params or config.sweep):
         return config
     import_plugins(config.plugins)
-    from runner.sweep import budget_parameters, typed_sweep
+    from runner.sweep import readable_budget_parameters, typed_sweep
     from methods.base import METHODS, available_methods
 
     methods = config.methods or tuple(available_methods(config.task))
     for m in methods:
         if m not in METHODS:
             raise ConfigError(f"--methods: {METHODS.unknown(m)}")
-    readable = budget_parameters(methods)
+    readable = readable_budget_parameters(methods, config.budget_params)
     budget_params = {}
     for key, value in config.budget_params.items():
-        if key not in readable:
-            raise ConfigError(f"--budget-param {key}: no method of this run ({', '.join(methods)}) reads a budget "
-                              f"setting '{key}'; the settings they read: {', '.join(sorted(readable)) or 'none'}")
         try:
             budget_params[key] = readable[key].parse(value, f"--budget-param {key}")
         except ValueError as exc:

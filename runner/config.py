@@ -1,5 +1,6 @@
-"""The run configuration as typed data: :class:`RunConfig` (what the user asked) and :class:`Plan`
-(what it resolves to: methods, their full parameters, the budget, the preset, the shape list).
+"""The run configuration as typed data: :class:`RunConfig`, what the user asked (what it resolves
+to, the methods, their full parameters, the budget, the preset and the shape list, is a
+:class:`runner.plan.Plan`).
 
 A ``RunConfig`` is frozen and checks its own values when built (:meth:`RunConfig.__post_init__`),
 from the command line, from a file (``--config`` TOML or JSON, or a run's ``config.json``) or from
@@ -221,20 +222,26 @@ class RunConfig:
             check_fields(self, "")
         except ParamError as exc:
             raise ConfigError(str(exc)) from None
-        object.__setattr__(self, "plugins", tuple(_absolute_plugin(p) for p in self.plugins))  # the workers' too
-        if self.task == "score":
-            object.__setattr__(self, "budget", None)  # nothing is fitted or trained
-        elif self.task == "reconstruct":
-            if self.budget is None:
-                object.__setattr__(self, "budget", "cpu")  # the training budget of the learned methods
-        elif self.mode == "oracle" and self.budget is not None:
-            object.__setattr__(self, "budget", None)  # oracle mode fits nothing: no budget in the protocol
-        elif self.mode == "neural" and self.budget is None:
-            object.__setattr__(self, "budget", "cpu")
         self._check()
+        for name, value in self._completed().items():  # a frozen record: the values it stands for, once
+            object.__setattr__(self, name, value)
+
+    def _completed(self) -> dict[str, Any]:
+        """The values the given ones stand for: plugins as absolute paths (the workers import them
+        from anywhere), the budget (``cpu`` where something is fitted or trained and none was named;
+        none where nothing is: a named one is refused where the user gave it, :func:`runner.cli.main`
+        and :meth:`from_mapping`), and the seeds a sweep over ``seed`` gives."""
+        done = {"plugins": tuple(_absolute_plugin(p) for p in self.plugins)}
+        fits = self.task == "reconstruct" or (self.task == "encode" and self.mode == "neural")
+        done["budget"] = (self.budget or "cpu") if fits else None  # oracle mode and scoring fit nothing
+        swept = tuple(self.sweep.get("seed", ()))
+        if swept and all(isinstance(v, int) and not isinstance(v, bool) for v in swept):  # else not typed yet
+            done["seeds"] = swept
+        return done
 
     def _check(self) -> None:
         from runner.executors import EXECUTORS
+
 
         if self.executor not in EXECUTORS:
             raise ConfigError(f"--executor: {EXECUTORS.unknown(self.executor)}")
@@ -284,7 +291,6 @@ class RunConfig:
         if swept and all(isinstance(v, int) and not isinstance(v, bool) for v in swept):  # else not typed yet
             if self.seeds not in ((0,), swept):
                 raise ConfigError("--seed and --sweep seed=... both give the seeds: give one")
-            object.__setattr__(self, "seeds", swept)
         if self.address is not None and self.executor != "ray":
             raise ConfigError("--address only applies to --executor ray")
         if self.workers is not None and self.executor == "local":

@@ -193,29 +193,17 @@ def _train_dirs(config: RunConfig, methods: tuple[str, ...]) -> tuple[str, ...]:
     return dirs
 
 
-#: Budget settings renamed since runs were saved with them: old name -> new name.
-RENAMED_BUDGET_SETTINGS = {"iterations": "steps"}
-
-
 def _budgets(config: RunConfig, methods: tuple[str, ...]) -> dict[str, Any]:
     """The budget record named ``config.budget`` of each budget family whose methods fit or train in
     this run, each with the overrides its family reads: ``{family: record}`` (empty in oracle mode
     and when no method trains). A family without that name refuses it, naming its budgets."""
     from methods.base import METHODS
-    from runner.sweep import trains
+    from runner.sweep import readable_budget_parameters, trains
 
     training = [m for m in methods if trains(m)] if config.budget is not None else []
     if config.budget_params and not training:
         raise ConfigError(f"--budget-param: none of {', '.join(methods)} fits or trains under a budget")
-    readable = set().union(*(METHODS.get(m).budget_fields() for m in training))
-    for key in config.budget_params:
-        if key in RENAMED_BUDGET_SETTINGS:
-            raise ConfigError(f"--budget-param {key}: this budget setting is now called "
-                              f"'{RENAMED_BUDGET_SETTINGS[key]}' (a run directory saved before the rename: pass "
-                              f"--budget-param {RENAMED_BUDGET_SETTINGS[key]}=... into another --out)")
-        if key not in readable:
-            raise ConfigError(f"--budget-param {key}: no method of this run ({', '.join(methods)}) reads a budget "
-                              f"setting '{key}'; the settings they read: {', '.join(sorted(readable))}")
+    readable_budget_parameters(training, config.budget_params)
     budgets: dict[str, Any] = {}
     for m in training:
         cls = METHODS.get(m)

@@ -66,6 +66,26 @@ def trains(method: str) -> bool:
     return METHODS.get(method).budget_family is not None
 
 
+#: Budget settings renamed since runs were saved with them: old name -> new name.
+RENAMED_BUDGET_SETTINGS = {"iterations": "steps"}
+
+
+def readable_budget_parameters(methods: Sequence[str], keys: Iterable[str]) -> dict[str, Param]:
+    """:func:`budget_parameters` of ``methods``, after checking that each of ``keys`` (the budget
+    settings a run changes) is one of them: ConfigError (one line) naming a renamed setting's new
+    name, or the settings these methods read."""
+    readable = budget_parameters(methods)
+    for key in keys:
+        if key in RENAMED_BUDGET_SETTINGS:
+            raise ConfigError(f"--budget-param {key}: this budget setting is now called "
+                              f"'{RENAMED_BUDGET_SETTINGS[key]}' (a run directory saved before the rename: pass "
+                              f"--budget-param {RENAMED_BUDGET_SETTINGS[key]}=... into another --out)")
+        if key not in readable:
+            raise ConfigError(f"--budget-param {key}: no method of this run ({', '.join(methods)}) reads a budget "
+                              f"setting '{key}'; the settings they read: {', '.join(sorted(readable)) or 'none'}")
+    return readable
+
+
 def budget_parameters(methods: Sequence[str]) -> dict[str, Param]:
     """The budget fields a run of ``methods`` may change: those of the methods' budget families (a
     field of several families typed by the first; each family parses it again by its own)."""
