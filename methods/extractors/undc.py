@@ -34,8 +34,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-import torch.nn.functional as F
-from torch import nn
 
 from foundation.fields import default_band
 from foundation.grid import index_to_world, spacing
@@ -44,23 +42,17 @@ from foundation.storage import CorruptEntry, read_checked, write_checked
 from foundation.timing import stage
 from methods.base import Extraction
 from methods.core.weights import WeightsError, load_plain
-from methods.extractors.ndc import (KERNEL_OFFSETS, inference_state, leaky, pointwise_conv, receptive_positions,
-                                    sparse_conv3)
+from methods.extractors.rec7 import DEFAULT_CHANNELS, RECEPTIVE_PADDING, Rec7Network, sparse_forward
 
-#: Grid points of padding each side: the receptive field of the three unpadded 3x3x3 convolutions.
-RECEPTIVE_PADDING = 3
 #: Input clip, voxel units (NDC's data loader clips to [-2, 2]; the UDF is >= 0).
 INPUT_CLIP = 2.0
 #: Value of the padding before the clip (NDC pads with +10 where the corner point's value is > 0).
 PADDING_VALUE = 10.0
-LEAKY_SLOPE = 0.01
 #: An edge crosses the surface when the bool network's sigmoid exceeds this.
 FLAG_THRESHOLD = 0.5
 #: The bool loss (and here the inference) covers the edges whose both end points have UDF below
 #: this many voxels: no other edge can cross the surface (an edge is one voxel long).
 EDGE_MASK_VOXELS = 1.0
-#: Channels of NDC's CNN_3d_rec7.
-DEFAULT_CHANNELS = 64
 #: Eigenvalues of a cell's normal matrix below this hold no constraint (null space of the QEF).
 EIGEN_FLOOR = 1e-9
 #: NDC's QEF regularisation: the initial weight, its integer steps' upper end, the bisection steps.
@@ -80,30 +72,10 @@ DEFAULT_WEIGHTS = Path(__file__).resolve().parents[1] / "weights" / "undc_cpu.pt
 # The network
 # --------------------------------------------------------------------------------------------------
 
-class UNDCNetwork(nn.Module):
-    """NDC's ``CNN_3d_rec7``: conv 3x3x3 (1 -> C), two conv 3x3x3 (C -> C), all unpadded, two conv
-    1x1x1 (C -> C), each followed by leaky ReLU 0.01, and a conv 1x1x1 (C -> 3) output.
-
-    Input (B, 1, D, H, W) in voxel units (:func:`network_input`); output (B, 3, D - 6, H - 6, W - 6),
-    raw: logits of the 3 edge flags (bool network; NDC applies the sigmoid inside the network) or
-    vertex positions in cell units (float network; clipped to [0, 1] at inference only).
-    """
-
-    def __init__(self, channels: int = DEFAULT_CHANNELS):
-        super().__init__()
-        self.config = {"channels": int(channels)}
-        c = int(channels)
-        self.conv_0 = nn.Conv3d(1, c, 3)
-        self.conv_1 = nn.Conv3d(c, c, 3)
-        self.conv_2 = nn.Conv3d(c, c, 3)
-        self.conv_3 = nn.Conv3d(c, c, 1)
-        self.conv_4 = nn.Conv3d(c, c, 1)
-        self.conv_out = nn.Conv3d(c, 3, 1)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        for layer in (self.conv_0, self.conv_1, self.conv_2, self.conv_3, self.conv_4):
-            x = F.leaky_relu(layer(x), LEAKY_SLOPE)
-        return self.conv_out(x)
+#: UNDC's two networks are NDC's ``CNN_3d_rec7`` with one input channel (the UDF) and 3 outputs:
+#: logits of the 3 edge flags (bool network; NDC applies the sigmoid inside the network) or vertex
+#: positions in cell units (float network; clipped to [0, 1] at inference only).
+UNDCNetwork = Rec7Network
 
 
 def network_input(udf_voxels: np.ndarray) -> np.ndarray:
@@ -113,43 +85,6 @@ def network_input(udf_voxels: np.ndarray) -> np.ndarray:
     udf = np.abs(np.asarray(udf_voxels, dtype=np.float32))
     padded = np.pad(udf, RECEPTIVE_PADDING, mode="constant", constant_values=PADDING_VALUE)
     return np.clip(padded, -INPUT_CLIP, INPUT_CLIP)
-
-
-def sparse_forward(network: UNDCNetwork, grid: np.ndarray, positions: np.ndarray) -> np.ndarray:
-    """``network(grid)`` at output ``positions`` only, without the dense convolution.
-
-    Parameters
-    ----------
-    network : a :class:`UNDCNetwork`.
-    grid : (D + 6, H + 6, W + 6) float32 input (:func:`network_input`).
-    positions : (M, 3) int output positions, each in [0, D) x [0, H) x [0, W).
-
-    Returns
-    -------
-    (M, 3) float32 raw outputs, the values of the dense pass ``network(grid)[0, :, p]`` (to float
-    rounding): each 3x3x3 layer is evaluated only where a later layer reads it (5^3 and 7^3
-    neighbourhoods of ``positions``), in :data:`~methods.extractors.ndc.INFERENCE_DTYPE` and rounded
-    to float32, as :func:`methods.extractors.ndc.ndc_vertex_offsets` does: the same bits on every CPU.
-    """
-    positions = np.asarray(positions, dtype=np.int64).reshape(-1, 3)
-    if len(positions) == 0:
-        return np.zeros((0, 3), dtype=np.float32)
-    state = inference_state(network.state_dict())
-    shape = np.array(grid.shape, dtype=np.int64) - 2 * RECEPTIVE_PADDING
-    at_conv1, index_conv1 = receptive_positions(positions, tuple(int(s) for s in shape + 2))
-    at_conv0, index_conv0 = receptive_positions(at_conv1, tuple(int(s) for s in shape + 4))
-    with torch.no_grad():
-        patches = at_conv0[:, None, :] + KERNEL_OFFSETS[None]
-        x = torch.from_numpy(np.ascontiguousarray(grid[patches[..., 0], patches[..., 1], patches[..., 2]],
-                                                  dtype=np.float64))  # (M0, 27)
-        w0 = state["conv_0.weight"]
-        x = leaky(torch.addmm(state["conv_0.bias"], x, w0.permute(2, 3, 4, 1, 0).reshape(27, -1)))
-        x = sparse_conv3(state, "conv_1", x, index_conv0, at_conv1)
-        x = sparse_conv3(state, "conv_2", x, index_conv1, positions)
-        x = leaky(pointwise_conv(state, "conv_3", x))
-        x = leaky(pointwise_conv(state, "conv_4", x))
-        out = pointwise_conv(state, "conv_out", x).to(torch.float32)
-    return out.numpy()
 
 
 # --------------------------------------------------------------------------------------------------
