@@ -2,7 +2,7 @@
 
 Run the ratio tables (interleaved steps, one process; medians):
     .venv/bin/python -m benchmarks.bench_network [threads] [rounds]
-(threads=1 on a machine others are using: docs/PERFORMANCE.md, "Measurements moved from docstrings")
+(threads=1 on a machine others are using: docs/PERFORMANCE.md, section 3)
 or as pytest-benchmark:  .venv/bin/pytest benchmarks/bench_network.py -o python_files='bench_*.py' --benchmark-enable -q
 
 1. Activations: the *paper* MLP (3 -> 9 x 512 -> 1) at batch 4,096 and the *quick* MLP (3 -> 5 x 128

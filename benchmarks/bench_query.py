@@ -8,7 +8,7 @@ or as pytest-benchmark:  .venv/bin/pytest benchmarks/bench_query.py -o python_fi
 Goal: sparse / dense query time <= 0.2 at N = 128 for points (sdf) and edges (sals, 6.24M edges dense).
 Also: a band of grid edges through ``evaluate_grid_edges`` (each endpoint encoded once) against the plain
 per-edge forward, with the *cpu* budget's grid network (16/32/64 x 4, 3 x 64 head); the ratios
-measured: docs/PERFORMANCE.md, "Measurements moved from docstrings".
+measured: docs/PERFORMANCE.md, section 6.
 
 The network is the *quick* architecture (5 linear layers, width 128) whose output is replaced by an
 analytic sphere field (radius 0.6; points: signed distance; edges: hit logit +-30 and the linear

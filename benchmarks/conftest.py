@@ -1,1 +1,1 @@
-"""pytest-benchmark speed measurements: not part of the default test run (how to run them: docs/PERFORMANCE.md, section 12)."""
+"""pytest-benchmark speed measurements: not part of the default test run (how to run them: docs/PERFORMANCE.md, section 14)."""

@@ -11,7 +11,7 @@ Definitions (p a point, M the mesh)
   (4 pi). Integer off the surface of a closed surface (+1 inside an outward-oriented one), continuous
   and fractional for open meshes. Evaluated exactly, by libigl's hierarchical ``winding_number`` or
   by crossing counts (below); never by the fast-winding-number approximation (not exact; its
-  error on ABC meshes: docs/PERFORMANCE.md, "Measurements moved from docstrings").
+  error on ABC meshes: docs/PERFORMANCE.md, section 5).
 * occupancy: inside iff |w| > 0.5.
 * UDF d(p) = min_{x in M} |p - x| (libigl AABB ``squared_distance``); gradient (p - c) / |p - c| with
   c the closest point (zero where d = 0).
@@ -215,7 +215,7 @@ class ExactFields:
             by its boundary cone, minus the cone's own winding number (libigl, only for open meshes):
             w_M = w_(M+C) - w_C (module docstring). Exact off the surface; a point exactly on the
             surface gets one side (libigl would give the average). Much faster than 'libigl' on CAD
-            meshes for many points (docs/PERFORMANCE.md, section 8).
+            meshes for many points (docs/PERFORMANCE.md, section 5).
         method 'libigl': libigl's exact hierarchical ``winding_number`` (not the fast-winding-number
             approximation, which is not exact), in chunks of ``CHUNK``.
         """

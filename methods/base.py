@@ -243,6 +243,12 @@ class FieldMethod(Method):
             sets.append(tuple(comps))
         return sets
 
+    def exact_grid(self, fields, N: int, cache):
+        """The exact field on the grid as a decomposition takes its components from it (the ``exact``
+        of :meth:`hybrid_grid` and :meth:`component_errors`): :meth:`oracle_grid`'s field, unless
+        oracle mode extracts something other than the exact components (a learned extractor)."""
+        return self.oracle_grid(fields, N, cache)[0]
+
     def hybrid_grid(self, fitted, exact, exact_parts: tuple[str, ...], model, N: int, device=None):
         """The grid field with the components ``exact_parts`` from ``exact`` (:meth:`oracle_grid`)
         and the others from ``fitted`` (:meth:`neural_grid`) or from ``model`` where ``fitted`` does

@@ -3,7 +3,7 @@
 Why a rasteriser of our own: a report renders (#shapes x (1 + 2 #methods)) thumbnails; pyvista/VTK is a
 large dependency with a slow first off-screen image, and matplotlib's 3D axes sort whole polygons (no
 z-buffer); a numpy z-buffer of triangles at 256 x 256 (2x supersampled) is fast, deterministic, and runs
-on any bare CI machine (the costs compared: docs/PERFORMANCE.md, "Measurements moved from docstrings").
+on any bare CI machine (the costs compared: docs/PERFORMANCE.md, section 9).
 
 Camera: orthographic, looking at the origin from (azimuth, elevation) degrees with +y up in the
 canonical frame ([-1, 1]^3). The framing is fixed by a bounding box (``bounds``), so

@@ -81,8 +81,7 @@ def test_emc_on_an_exact_sphere_udf_is_a_closed_mesh_on_the_sphere():
 
 def test_emc_miscuts_few_cells_of_an_exact_sphere():
     # N = 48, R = 0.6: the pair test leaves a few cells near the diagonals |x| = |y| = |z| cut on
-    # the wrong edges, as in the authors' code (how many: docs/PERFORMANCE.md, "Measurements moved
-    # from docstrings")
+    # the wrong edges, as in the authors' code (how many: docs/PERFORMANCE.md, section 7)
     N, R = 48, 0.6
     h = spacing(N)
     mesh = edge_marching_cubes(*_sphere_fields(N, R), snap=1e-3)

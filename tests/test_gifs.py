@@ -9,8 +9,7 @@ trip, determinism, and a ``tiny`` training that reconstructs a sphere.
   (| |x| - r |) on the cubes within 2 h. Every vertex lies on a grid edge at the zero of the linear
   interpolant of -d_a, +d_b, within 0.01 h of the sphere (the chord error of linear interpolation,
   about h^2 / (8 r) / h = 0.009 h at most); the cubes agree, so the mesh is closed (no boundary edge)
-  and its area is within 1 % of 4 pi r^2 (the measured margins: docs/PERFORMANCE.md, "Measurements
-  moved from docstrings").
+  and its area is within 1 % of 4 pi r^2 (the measured margins: docs/PERFORMANCE.md, section 7).
 * Open square z = 0.1, |x|, |y| <= 0.5 (two triangles), grid 40: flags from ``ExactFields.segments``,
   UDFs from ``ExactFields.udf``. The vertices lie on the plane (UDF < 1e-6 h), the mesh has a
   boundary and every point of the square is within 0.5 h of it (the gap: the strips of the rim's

@@ -57,8 +57,7 @@ def test_ball_pivoting_interpolates_the_points():
     points = sphere_points(20_000)
     mesh = get_method("ball-pivoting").reconstruct(points, N=64)
     # a closed surface has ~2 triangles per point; random sampling leaves holes where it is sparser
-    # than the automatic ball (the count measured: docs/PERFORMANCE.md, "Measurements moved from
-    # docstrings")
+    # than the automatic ball (the count measured: docs/PERFORMANCE.md, section 7)
     assert 0.6 * 2 * len(points) < len(mesh.faces) <= 2 * len(points)
     assert np.abs(np.linalg.norm(mesh.vertices, axis=1) - R).max() < 1e-9  # its vertices are input points
 

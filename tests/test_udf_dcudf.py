@@ -15,7 +15,7 @@ def test_oracle_turned_box_is_closed_and_as_close_as_meshudf(tmp_path, torch_thr
     """At 40^3 with r = 0.03 (the authors' r, 0.064 here, makes the inner and outer sheets of so small
     a box differ by more than the cut's 15 %) and 40 iterations: the cut keeps the outer sheet, a
     closed mesh with a CD close to MeshUDF's, whose mesh has boundary edges; the box's edges come
-    out rounded (the measured values: docs/PERFORMANCE.md, "Measurements moved from docstrings")."""
+    out rounded (the measured values: docs/PERFORMANCE.md, section 7)."""
     V, F, _, _ = generic_box()
     ex = _oracle("udf-dcudf", V, F, 40, tmp_path, r=0.03, iterations=40)
     mu = _oracle("udf", V, F, 40, tmp_path)

@@ -19,7 +19,7 @@ _DOT_CHUNK = 4_000_000
 
 #: Default work limit of :func:`sharp_edge_points`: an upper bound on the ordered candidate pairs
 #: (cell counts times 27-neighbourhood counts, above the true count; the bound of 1M-sample CAD
-#: meshes: docs/PERFORMANCE.md, "Measurements moved from docstrings").
+#: meshes: docs/PERFORMANCE.md, section 8).
 MAX_EDGE_PAIRS = 1_000_000_000
 
 
@@ -48,7 +48,7 @@ def sharp_edge_points(
        ``arccos(dot_threshold)`` (minus 1e-6 rad for rounding) for all 27 neighbours of c0, no pair
        touching c0 can qualify: c0 is *safe*. A qualifying pair therefore joins two points of unsafe
        cells, and the search is restricted to them (the share of the samples they hold on CAD meshes:
-       docs/PERFORMANCE.md, "Measurements moved from docstrings").
+       docs/PERFORMANCE.md, section 8).
     2. *Exact search* on the remaining candidates: scipy ``cKDTree.query_pairs(radius)`` (inclusive
        ``<=``, like sklearn's ``query_radius`` that NDC uses), in slabs of cell layers along the
        longest axis (each slab plus one layer of halo), so memory stays bounded.

@@ -106,7 +106,7 @@ def flush_denormals() -> Iterator[None]:
     and x86 cores take a slow path on every denormal operand. A fitted head has many such
     pre-activations (a SALS head more than an SDF one), so on the CPU this costs time and nothing
     else: the values flushed lie below float32's smallest normal number (1.2e-38), and the fitted
-    weights and extracted meshes stay the same (docs/PERFORMANCE.md, section 8). No effect on CUDA
+    weights and extracted meshes stay the same (docs/PERFORMANCE.md, section 2). No effect on CUDA
     tensors. Nested blocks are counted, not restored in turn.
     """
     global _flush_depth

@@ -52,7 +52,7 @@ class Budget:
     cell no sample visits to 0, and cells the samples rarely reach toward it); the grid settings
     are empty for ``'mlp'`` budgets and required for ``'grid'`` ones.
     ``fused_adam``: torch's fused AdamW kernel (the same update to float rounding; much faster than
-    the default per-tensor loop on a feature grid's values: docs/PERFORMANCE.md, section 8). Off for
+    the default per-tensor loop on a feature grid's values: docs/PERFORMANCE.md, section 2). Off for
     the MLP budgets, whose numbers stay those of the default kernel.
     ``log_every``: the loss is checked for NaN/inf and reported to ``progress`` every so many steps.
     ``warmup_fraction``: the first ``round(warmup_fraction * steps)`` steps ramp both learning

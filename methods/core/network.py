@@ -153,7 +153,7 @@ def trilinear(volume: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     An explicit gather (one ``index_select`` of the 8 corner rows, then a lerp along x, y and z): its
     backward adds each point's 8 weighted gradients into their rows (``index_add``). Chosen over
     ``torch.nn.functional.grid_sample`` (the same values) for the speed of whole training steps,
-    above all with a second-order loss (benchmarks/bench_network.py; docs/PERFORMANCE.md, section 8).
+    above all with a second-order loss (benchmarks/bench_network.py; docs/PERFORMANCE.md, section 2).
     Differentiable to any order in ``points`` and ``volume`` (the weights are products of the
     fractional coordinates, the features enter linearly); inside a cell the value is linear along
     each axis, so its derivative is piecewise constant.
@@ -266,7 +266,7 @@ class GridNetwork(nn.Module):
     The offset is given explicitly because the head cannot resolve it from the raw endpoints: a grid
     edge at 128^3 is 0.016 long between coordinates of size ~1, so without it the network cannot
     tell an edge from the longer training segments around it and predicts their average hit rate
-    (docs/PERFORMANCE.md, section 8). Still a function of the segment: swapping u and v swaps the
+    (docs/PERFORMANCE.md, section 2). Still a function of the segment: swapping u and v swaps the
     two code blocks and negates the offset.
 
     The head is ``MLP(k (L C + 3), out_dim, depth, width, beta, activation)``, with the MLP's

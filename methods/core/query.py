@@ -1,7 +1,7 @@
 """Evaluating a fitted network on the grid of :mod:`foundation.grid`: dense, sparse, with input gradients.
 
 Everything is chunked (``chunk`` rows per forward pass: small chunks are faster on the CPU, see
-docs/PERFORMANCE.md, "Measurements moved from docstrings") and returns numpy float32 arrays.
+docs/PERFORMANCE.md, section 6) and returns numpy float32 arrays.
 
 Sparse coarse-to-fine strategy (the same for every method)
 ----------------------------------------------------------
@@ -21,7 +21,7 @@ Sparse coarse-to-fine strategy (the same for every method)
 Edges (coarse and fine) go through :func:`evaluate_point_pairs`: a grid point is an endpoint of up
 to 6 edges, and the segment networks of :mod:`methods.core.network` are split after their first layer
 into one term per endpoint, so each point is encoded once and an edge costs the rest of the network
-(most of an edge's cost is the head's Softplus, which both ways pay; docs/PERFORMANCE.md, section 8).
+(most of an edge's cost is the head's Softplus, which both ways pay; docs/PERFORMANCE.md, section 6).
 
 Fill values where nothing is evaluated ("far"): point fields get the *trilinear upsampling of the
 coarse values* (so a far point keeps the side of the level set its block's corners have: an SDF

@@ -37,3 +37,23 @@ def nearer_endpoint_normals(s: np.ndarray, grad: np.ndarray) -> np.ndarray:
     g = np.where((s > 0.5)[:, None], grad[:, :3], grad[:, 3:])
     norm = np.linalg.norm(g, axis=1, keepdims=True)
     return np.divide(g, norm, out=np.zeros_like(g), where=norm > 0)
+
+
+def band_field(model, N: int, o_low: float, device=None, stride: int | None = None
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """A fitted segment network on the grid edges near the surface (the sparse edge query of
+    :func:`methods.core.query.sparse_grid_edges`: blocks whose coarse edges have o_hat > ``o_low``):
+    ``(edge_ids (E,) int64 sorted, o_hat (E,) float32, s_hat (E,) float32, query fraction)`` of every
+    edge the query evaluated."""
+    from scipy.special import expit
+
+    from methods.core import query
+
+    low = float(np.log(o_low / (1.0 - o_low)))
+    out, evaluated, info = query.sparse_grid_edges(model, N, lambda values: values[:, 0] > low, device,
+                                                   stride=query.DEFAULT_STRIDE if stride is None else stride,
+                                                   edge_fill=np.array([-30.0, 0.0], dtype=np.float32))
+    ids = np.flatnonzero(evaluated)
+    o = expit(out[ids, 0].astype(np.float64)).astype(np.float32)
+    s = expit(out[ids, 1].astype(np.float64)).astype(np.float32)
+    return ids, o, s, info.fraction

@@ -14,8 +14,7 @@ triangle mesh in the canonical frame [-1, 1]^3 (it may have small holes).
    plane through the anchor's closest surface point ``q_A = x_A - d_A g_A``:
    ``sign(g_A . (x_i - q_A)) = sign(d_A + g_A . (x_i - x_A))``. On an analytic cube UDF the
    anchor rule leaves holes along the cube's edges, the hybrid rule a closed mesh short of the
-   cube's area only by marching cubes' chamfer at the edges (docs/PERFORMANCE.md, "Measurements
-   moved from docstrings").
+   cube's area only by marching cubes' chamfer at the edges (docs/PERFORMANCE.md, section 7).
 3. Each candidate cube is triangulated with the marching-cubes case table (256 sign cases -> up to
    5 triangles over the 12 cube edges) at level 0 of ``sign * d``, all cubes at once in numpy. A
    crossing on the cube edge between corners 0 and 1 (signed values ``f0 < 0 <= f1`` or the

@@ -13,7 +13,7 @@ Steps, all pymeshlab (MeshLab's filters), on the raw points (no normals given):
    is the sampling density in octree-depth units (about ``depth - 0.5`` on a uniformly sampled
    surface); vertices more than ``trim_depth`` below ``depth`` are removed with their faces: the
    low-density membrane Poisson spans over holes and open boundaries (what it removes from a
-   sphere and a hemisphere: docs/PERFORMANCE.md, "Measurements moved from docstrings"). 0 keeps the
+   sphere and a hemisphere: docs/PERFORMANCE.md, section 7). 0 keeps the
    untrimmed surface.
 
 Poisson's output is a closed (indicator-function) surface: open boundaries and non-manifold

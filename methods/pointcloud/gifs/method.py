@@ -95,7 +95,7 @@ class GIFSBudget(TrainingSet):
 #: of width 256 (512 -> 256 -> 256 -> 256), items of 50,000 pairs, batches of 2, Adam 1e-6; their
 #: schedule is wall-clock (released checkpoint at 44 h), 400k steps is our stand-in. *cpu*: a training
 #: for one CPU core (its cost: docs/PROTOCOL.md, "gifs"; why the voxel grid and the learning rate:
-#: docs/PERFORMANCE.md, "Measurements moved from docstrings"): voxel grid 96^3, widths 8, 16, 32, 64,
+#: docs/PERFORMANCE.md, section 10): voxel grid 96^3, widths 8, 16, 32, 64,
 #: 64, 64, decoders of width 128, items of 2,048 pairs, batches of 2, Adam 1e-4, 900 steps. *tiny*:
 #: tests.
 GIFS_FAMILY = register_budget_family("gifs", (

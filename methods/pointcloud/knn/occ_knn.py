@@ -13,7 +13,7 @@ The shared encoder is purely local, and occupancy is not a local quantity: the K
 x + d n and of x - d n beside a flat patch with normal n are mirror images, so the network cannot
 tell the inside from the outside there (only curvature hints at it): its training BCE stays
 above 0 and the band keeps sheets of p ~ 0.5 (the numbers at the ``cpu`` budget: docs/PROTOCOL.md,
-"Point-cloud reconstruction"; docs/PERFORMANCE.md, "Measurements moved from docstrings"). POCO and
+"Point-cloud reconstruction"; docs/PERFORMANCE.md, section 10). POCO and
 ConvONet get the sign from a large receptive field; here the encoder is the shared one so that the
 comparison isolates the representation, and this is the price.
 """

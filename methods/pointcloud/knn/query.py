@@ -18,7 +18,7 @@ from methods.pointcloud.neighbourhoods import knn_neighbourhoods
 
 #: Queries per forward pass, by device type. Each query carries K point features through the
 #: encoders, so a chunk's activations are ``chunk x K x width`` floats: on a CPU the pass is bound by
-#: cache, not arithmetic, and small chunks are fastest (docs/PERFORMANCE.md, section 8). A GPU
+#: cache, not arithmetic, and small chunks are fastest (docs/PERFORMANCE.md, section 10). A GPU
 #: wants large chunks.
 CHUNK = {"cpu": 256, "cuda": 16_384}
 DEFAULT_CHUNK = 4_096
