@@ -126,7 +126,7 @@ def _decompose(job: _Encode, fields, model, fitted) -> None:
     ctx, spec, method = job.ctx, job.spec, job.method
     ctx.report("decomposing")
     with stage("decompose"):
-        exact, _ = method.oracle_grid(fields, spec.grid, job.caches.fields)
+        exact = method.exact_grid(fields, spec.grid, job.caches.fields)
         ctx.result.metrics.update(method.component_errors(fitted, exact, spec.grid))
         for parts in method.decompositions():
             with StageTimer(ctx.timer.sync).active() as inner:
