@@ -1,0 +1,64 @@
+"""Per-job results of finished runs as one CSV for docs/results/: every job, failed ones included
+(NaN metrics and their status), with the columns RESULTS.md's tables are computed from.
+
+    python scripts/export_results.py RUN_DIR [RUN_DIR ...] --commit SHA --out docs/results/NAME.csv
+
+Columns: ``shape, method, seed, mode, budget, input, cd, nc, f1_005, f1_01, ecd, ef1, n_faces,
+status, error, seen_in_training, commit``. ``input``: ``mesh`` for the encode task (the GT mesh's
+exact fields), else the reconstruct task's input cloud (``uniform``, ``scan``, ``noise-2``, ...).
+``commit``: the commit whose code computed the rows (the frozen worktree a long run ran from).
+Rows are sorted by method, shape and seed; numbers keep 9 significant digits.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import pandas as pd
+
+COLUMNS = ["shape", "method", "seed", "mode", "budget", "input", "cd", "nc", "f1_005", "f1_01", "ecd", "ef1",
+           "n_faces", "status", "error", "seen_in_training", "commit"]
+
+
+def run_input(run_dir: Path) -> str:
+    """What a run's jobs read: ``mesh`` (encode) or its reconstruct input (``pc_corruption``)."""
+    config = json.loads((run_dir / "config.json").read_text())["config"]
+    return "mesh" if config.get("task", "encode") != "reconstruct" else str(config.get("pc_corruption", "uniform"))
+
+
+def job_rows(run_dir: Path, commit: str) -> pd.DataFrame:
+    """The jobs of one run directory (its results.csv) in :data:`COLUMNS`."""
+    frame = pd.read_csv(run_dir / "results.csv")
+    frame["input"] = run_input(run_dir)
+    frame["commit"] = commit
+    for column in COLUMNS:
+        if column not in frame:
+            frame[column] = float("nan")
+    return frame[COLUMNS]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python scripts/export_results.py", description=__doc__.split("\n\n")[0])
+    parser.add_argument("runs", nargs="+", type=Path, help="finished run directories")
+    parser.add_argument("--commit", required=True, help="the commit whose code computed the rows")
+    parser.add_argument("--out", type=Path, required=True, help="the CSV to write")
+    args = parser.parse_args(argv)
+    frames = []
+    for run in args.runs:
+        if not (run / "results.csv").is_file():
+            print(f"export_results: {run} has no results.csv (run `run_benchmark.py report {run}` first)",
+                  file=sys.stderr)
+            return 2
+        frames.append(job_rows(run, args.commit))
+    table = pd.concat(frames, ignore_index=True).sort_values(["method", "shape", "seed"], kind="stable")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    table.to_csv(args.out, index=False, float_format="%.9g")
+    print(f"wrote {args.out}: {len(table)} jobs ({int((table.status == 'ok').sum())} ok)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,45 @@
+"""scripts/export_results.py: every job of the runs in the CSV's columns, failed ones with NaN
+metrics and their status, the input named by the run's task, the commit stamped on every row."""
+
+import importlib.util
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "export_results.py"
+
+
+def _script():
+    spec = importlib.util.spec_from_file_location("export_results", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _run(path: Path, task: str, corruption: str, rows: list[dict]) -> Path:
+    path.mkdir()
+    (path / "config.json").write_text(json.dumps({"config": {"task": task, "pc_corruption": corruption}}))
+    pd.DataFrame(rows).to_csv(path / "results.csv", index=False)
+    return path
+
+
+def test_every_job_with_its_status_input_and_commit(tmp_path):
+    script = _script()
+    encode = _run(tmp_path / "encode", "encode", "uniform", [
+        {"shape": "b", "method": "sals", "seed": 0, "mode": "neural", "budget": "cpu", "status": "ok", "cd": 0.002,
+         "ef1": 0.7, "n_faces": 100, "extra_column": 1},
+        {"shape": "a", "method": "sals", "seed": 0, "mode": "neural", "budget": "cpu", "status": "failed",
+         "error": "fit: FittingError: non-finite loss"}])
+    scan = _run(tmp_path / "scan", "reconstruct", "scan", [
+        {"shape": "a", "method": "poisson", "seed": 0, "mode": "neural", "status": "ok", "cd": 0.004}])
+    out = tmp_path / "out.csv"
+    assert script.main([str(encode), str(scan), "--commit", "abc1234", "--out", str(out)]) == 0
+    table = pd.read_csv(out)
+    assert list(table.columns) == script.COLUMNS
+    assert list(zip(table["method"], table["shape"])) == [("poisson", "a"), ("sals", "a"), ("sals", "b")]
+    failed = table[table.status == "failed"].iloc[0]
+    assert np.isnan(failed["cd"]) and failed["error"].startswith("fit:")
+    assert list(table["input"]) == ["scan", "mesh", "mesh"] and set(table["commit"]) == {"abc1234"}
+    assert script.main([str(tmp_path / "nope"), "--commit", "x", "--out", str(out)]) == 2
