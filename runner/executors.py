@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import os
 import signal
+import time
 import queue as _queue
 import sys
 from collections import deque
@@ -191,10 +192,8 @@ def worker_death(processes) -> str:
     pool forgets its workers as it breaks, so the caller keeps them) ended, in words: killed by a
     signal (SIGKILL is what the kernel's out-of-memory killer sends) or an exit status. The pool's
     own termination of its other workers (SIGTERM) is not the cause and is left out."""
-    processes = list(processes)
-    for process in processes:  # a broken pool ends all its workers; wait (bounded) until each is reaped
-        process.join(timeout=30)
-    codes = [p.exitcode for p in processes if p.exitcode not in (None, 0, -signal.SIGTERM)]
+    deadline = time.monotonic() + 30  # a broken pool ends all its workers: wait (bounded) for each exit code
+    codes = [code for code in (_exit_code(p, deadline) for p in processes) if code not in (None, 0, -signal.SIGTERM)]
     if not codes:
         return "cause unknown"
     code = codes[0]
@@ -203,6 +202,17 @@ def worker_death(processes) -> str:
     if code < 0:
         return f"killed by {signal.Signals(-code).name}"
     return f"exit status {code}"
+
+
+def _exit_code(process, deadline: float) -> int | None:
+    """``process``'s exit code, waiting until ``deadline`` (``time.monotonic``) at most. The pool's own
+    thread reaps its dead workers too: when it wins the race for the exit status, this process's
+    wait comes back empty-handed and the code appears only once that thread has recorded it on the
+    shared process object, so the code is polled, not read once."""
+    process.join(timeout=max(0.0, deadline - time.monotonic()))
+    while process.exitcode is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    return process.exitcode
 
 
 class ProcessExecutor:
