@@ -12,6 +12,7 @@ parts and the Thingi10K meshes (:mod:`methods.training.learned_flags`); every ro
 shape was among them (``seen_in_training``).
 Oracle: the exact segment field on the grid (o = 1 on the crossing edges, their exact s) read by the
 same network, with the exact normals: how much the network loses on a perfect field.
+The network's seconds are the sub-stage ``flags`` of the query (neural) or of the oracle query.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from functools import lru_cache
 import numpy as np
 
 from foundation.params import Param
+from foundation.timing import stage
 from methods.base import register_method
 from methods.core.segment_field import band_field, nearer_endpoint_normals
 from methods.core.training_record import TrainingRecord
@@ -78,7 +80,8 @@ class SALSNDCMethod(SALSMethod):
     def neural_grid(self, model, N, device=None):
         ids, o, s, fraction = band_field(model, N, self.params["o_low"], device, self.params["stride"])
         network, _ = _load()
-        flagged = learned_flags.predict_flags(network, N, ids, o, s, self.params["o_low"])
+        with stage("flags"):
+            flagged = learned_flags.predict_flags(network, N, ids, o, s, self.params["o_low"])
         s_flagged = s[np.searchsorted(ids, flagged)]
         normals = None
         if self.params["normals"] and len(flagged):
@@ -99,7 +102,8 @@ class SALSNDCMethod(SALSMethod):
         ef = cache.get(fields, N, "edges")
         hits = np.flatnonzero(ef.hit)
         network, _ = _load()
-        flagged = learned_flags.predict_flags(network, N, hits, np.ones(len(hits), dtype=np.float32), ef.s[hits],
-                                              self.params["o_low"])
+        with stage("flags"):
+            flagged = learned_flags.predict_flags(network, N, hits, np.ones(len(hits), dtype=np.float32), ef.s[hits],
+                                                  self.params["o_low"])
         return {"edge_ids": flagged, "s": ef.s[flagged], "normals": ef.normal[flagged]}, \
             {"flagged_edges": int(len(flagged)), "candidate_edges": int(len(hits))}
