@@ -6,7 +6,6 @@ when that folder is absent."""
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 import re
 import warnings
 
@@ -14,6 +13,7 @@ import pytest
 
 from datasets import get_dataset
 from datasets.abc import read_list_file
+from tests.scripts import load_script
 from tests.conftest import REPO, SHARED_DATA
 
 LIST = REPO / "lists" / "abc-unseen.txt"
@@ -25,14 +25,7 @@ MAX_FACES = 50_000
 ABC_STEM = re.compile(r"^(\d{8})_[0-9a-f]{8,}_trimesh_\d{3}$")
 
 
-def _load_script():
-    spec = importlib.util.spec_from_file_location("fetch_abc_unseen", REPO / "scripts" / "fetch_abc_unseen.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-fetch_script = _load_script()
+fetch_script = load_script("fetch_abc_unseen")
 ENTRIES = read_list_file(LIST)
 ROWS, ROW_PROBLEMS = fetch_script.manifest_rows()
 

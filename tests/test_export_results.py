@@ -1,21 +1,13 @@
 """scripts/export_results.py: every job of the runs in the CSV's columns, failed ones with NaN
 metrics and their status, the input named by the run's task, the commit stamped on every row."""
 
-import importlib.util
 import json
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "export_results.py"
-
-
-def _script():
-    spec = importlib.util.spec_from_file_location("export_results", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from tests.scripts import load_script
 
 
 def _run(path: Path, task: str, corruption: str, rows: list[dict]) -> Path:
@@ -26,7 +18,7 @@ def _run(path: Path, task: str, corruption: str, rows: list[dict]) -> Path:
 
 
 def test_every_job_with_its_status_input_and_commit(tmp_path):
-    script = _script()
+    script = load_script("export_results")
     encode = _run(tmp_path / "encode", "encode", "uniform", [
         {"shape": "b", "method": "sals", "seed": 0, "mode": "neural", "budget": "cpu", "status": "ok", "cd": 0.002,
          "ef1": 0.7, "n_faces": 100, "extra_column": 1},

@@ -1,24 +1,16 @@
 """scripts/paper_table.py: the paper's value beside our mean, median, interval and ratio, on a
 hand-built table; the ordering check says where the paper's order holds."""
 
-import importlib.util
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "paper_table.py"
-
-
-def _script():
-    spec = importlib.util.spec_from_file_location("paper_table", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from tests.scripts import load_script
 
 
 def test_ours_beside_the_papers_values_and_the_orderings():
-    script = _script()
+    script = load_script("paper_table")
     jobs = pd.DataFrame({"shape": list("abcd") * 2, "method": ["sals"] * 4 + ["sdf"] * 4,
                          "status": ["ok"] * 7 + ["failed"],
                          "ecd": [0.01, 0.02, 0.03, np.nan, 0.05, 0.06, 0.07, np.nan],

@@ -11,6 +11,7 @@ refused unread, whoever wrote its checksum.
 
 from __future__ import annotations
 
+import functools
 import io
 from typing import Callable
 
@@ -71,3 +72,38 @@ def weights_from_bytes(data: bytes, build: Callable[..., torch.nn.Module], devic
     model.load_state_dict(blob["state_dict"])
     model.eval()
     return model, blob
+
+
+def read_weights_file(path, what: str, train_command: str, env: str) -> tuple[dict, str]:
+    """(the plain dict, the SHA-256 of the payload) of a weights file written checksummed
+    (:func:`foundation.storage.write_checked`); :class:`WeightsError` in one line naming the file:
+    absent (with ``train_command``, the command that trains it, and ``env``, the variable that names
+    another file), damaged (re-train), or not plain data (:func:`load_plain`)."""
+    import hashlib
+
+    from foundation.storage import CorruptEntry, read_checked
+
+    try:
+        payload = read_checked(path)
+    except CorruptEntry as exc:
+        raise WeightsError(f"{exc} (re-train: {train_command})") from None
+    if payload is None:
+        raise WeightsError(f"{what} not found at {path} (train them: {train_command}, or set {env})")
+    return load_plain(payload, f"{what} {path}", "cpu"), hashlib.sha256(payload).hexdigest()
+
+
+def load_cached(path, load: Callable):
+    """``load(path)``, memoised per process by the file's (path, size, modification time), so a
+    rewritten file is read again; an absent file calls ``load`` (which raises its one-line error)."""
+    from pathlib import Path
+
+    path = Path(path)
+    if not path.is_file():
+        return load(path)
+    stat = path.stat()
+    return _load_memo(str(path), stat.st_size, stat.st_mtime_ns, load)
+
+
+@functools.lru_cache(maxsize=4)
+def _load_memo(path: str, size: int, modified_ns: int, load: Callable):
+    return load(path)

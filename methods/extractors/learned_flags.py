@@ -30,8 +30,8 @@ import numpy as np
 import torch
 
 from foundation.grid import edge_index_to_ijk_axis, ijk_axis_to_edge_index
-from foundation.storage import CorruptEntry, read_checked, write_checked
-from methods.core.weights import WeightsError, load_plain
+from foundation.storage import write_checked
+from methods.core.weights import WeightsError, read_weights_file
 from methods.extractors.rec7 import RECEPTIVE_PADDING, Rec7Network, sparse_forward
 
 #: Input channels: o of the x, y, z edges from a point, then s - 1/2 of the same edges.
@@ -141,15 +141,8 @@ def load_weights(path: str | Path | None = None) -> tuple[Rec7Network, dict]:
     Raises :class:`WeightsError` with one line naming the file: absent (with the command that trains
     it), damaged, or trained on an evaluation shape (:data:`EVALUATION_NAME`)."""
     path = Path(path) if path is not None else weights_path()
-    try:
-        payload = read_checked(path)
-    except CorruptEntry as exc:
-        raise WeightsError(f"{exc} (re-train: {_training_command(path)})") from None
-    if payload is None:
-        raise WeightsError(f"sals-ndc weights not found at {path} (train them: {_training_command(path)}, "
-                           f"or set {WEIGHTS_ENV})")
-    blob = load_plain(payload, f"sals-ndc weights {path}", "cpu")
-    info = {**blob["info"], "sha256": hashlib.sha256(payload).hexdigest()}
+    blob, sha256 = read_weights_file(path, "sals-ndc weights", _training_command(path), WEIGHTS_ENV)
+    info = {**blob["info"], "sha256": sha256}
     seen = [name for name in info.get("training_names", ()) if EVALUATION_NAME.match(str(name))]
     if seen:
         raise WeightsError(f"{path} was trained on evaluation shape(s) {', '.join(map(str, seen[:3]))}"

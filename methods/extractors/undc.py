@@ -38,10 +38,10 @@ import torch
 from foundation.fields import default_band
 from foundation.grid import index_to_world, spacing
 from foundation.raster import grid_line_hits
-from foundation.storage import CorruptEntry, read_checked, write_checked
+from foundation.storage import write_checked
 from foundation.timing import stage
 from methods.base import Extraction
-from methods.core.weights import WeightsError, load_plain
+from methods.core.weights import WeightsError, read_weights_file  # noqa: F401 (WeightsError: what load_weights raises)
 from methods.extractors.rec7 import DEFAULT_CHANNELS, RECEPTIVE_PADDING, Rec7Network, sparse_forward
 
 #: Input clip, voxel units (NDC's data loader clips to [-2, 2]; the UDF is >= 0).
@@ -458,15 +458,8 @@ def load_weights(path: str | Path | None = None) -> tuple[UNDCNetwork, UNDCNetwo
     Raises :class:`WeightsError` with one line naming the file (and, when it is absent, the command
     that trains it)."""
     path = Path(path) if path is not None else weights_path()
-    try:
-        payload = read_checked(path)
-    except CorruptEntry as exc:
-        raise WeightsError(f"{exc} (re-train: {_training_command(path)})") from None
-    if payload is None:
-        raise WeightsError(f"UNDC weights not found at {path} (train them: {_training_command(path)}, "
-                           f"or set {WEIGHTS_ENV})")
-    blob = load_plain(payload, f"UNDC weights {path}", "cpu")
-    info = {**blob["info"], "sha256": hashlib.sha256(payload).hexdigest()}
+    blob, sha256 = read_weights_file(path, "UNDC weights", _training_command(path), WEIGHTS_ENV)
+    info = {**blob["info"], "sha256": sha256}
     networks = []
     for kind in ("bool", "float"):
         network = UNDCNetwork(**blob["config"])

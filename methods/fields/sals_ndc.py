@@ -17,8 +17,6 @@ The network's seconds are the sub-stage ``flags`` of the query (neural) or of th
 
 from __future__ import annotations
 
-from functools import lru_cache
-
 import numpy as np
 
 from foundation.params import Param
@@ -26,23 +24,14 @@ from foundation.timing import stage
 from methods.base import register_method
 from methods.core.segment_field import band_field, nearer_endpoint_normals
 from methods.core.training_record import TrainingRecord
-from methods.core.weights import WeightsError
+from methods.core.weights import WeightsError, load_cached
 from methods.extractors import learned_flags
 from methods.fields.sals import SALSMethod
 
 
-@lru_cache(maxsize=2)
-def _networks(path: str, size: int, modified_ns: int):
-    """(network, info) of a weights file, cached by (path, size, modification time)."""
-    return learned_flags.load_weights(path)
-
-
 def _load():
-    path = learned_flags.weights_path()
-    stat = path.stat() if path.is_file() else None
-    if stat is None:
-        learned_flags.load_weights(path)  # raises the one-line WeightsError
-    return _networks(str(path), stat.st_size, stat.st_mtime_ns)
+    """The weights file's networks and info, read once per process while the file is unchanged."""
+    return load_cached(learned_flags.weights_path(), learned_flags.load_weights)
 
 
 @register_method(order=41, color="#b8336a")

@@ -18,32 +18,21 @@ networks see the fitted values wherever they are not clipped; d = max(f, 0).
 
 from __future__ import annotations
 
-from functools import lru_cache
-
 import numpy as np
 
 from foundation.grid import spacing
 from foundation.params import Param
 from methods.core import query
 from methods.extractors import undc
-from methods.core.weights import WeightsError
+from methods.core.weights import WeightsError, load_cached
 from methods.base import Extraction, register_method
 from methods.core.training_record import TrainingRecord
 from methods.fields.udf import UDFMethod
 
 
-@lru_cache(maxsize=2)
-def _networks(path: str, size: int, modified_ns: int):
-    """(bool network, float network, info) of a weights file, cached by (path, size, modification time)."""
-    return undc.load_weights(path)
-
-
 def _load():
-    path = undc.weights_path()
-    stat = path.stat() if path.is_file() else None
-    if stat is None:
-        undc.load_weights(path)  # raises the one-line WeightsError
-    return _networks(str(path), stat.st_size, stat.st_mtime_ns)
+    """The weights file's networks and info, read once per process while the file is unchanged."""
+    return load_cached(undc.weights_path(), undc.load_weights)
 
 
 @register_method(order=36, color="#a0522d")
