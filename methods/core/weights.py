@@ -107,3 +107,21 @@ def load_cached(path, load: Callable):
 @functools.lru_cache(maxsize=4)
 def _load_memo(path: str, size: int, modified_ns: int, load: Callable):
     return load(path)
+
+
+def write_weights_file(path, blob: dict) -> str:
+    """``torch.save`` of the plain ``blob`` (state dicts, config, info) to ``path``, atomically and
+    checksummed (:func:`foundation.storage.write_checked`), its folder made; returns the SHA-256 of the
+    payload (what :func:`read_weights_file` returns for it)."""
+    import hashlib
+    from pathlib import Path
+
+    from foundation.storage import write_checked
+
+    buf = io.BytesIO()
+    torch.save(blob, buf)
+    payload = buf.getvalue()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_checked(path, payload)
+    return hashlib.sha256(payload).hexdigest()

@@ -20,18 +20,14 @@ content hashes) and is refused in one line when one of them is an evaluation sha
 
 from __future__ import annotations
 
-import hashlib
-import io
 import os
 import re
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from foundation.grid import edge_index_to_ijk_axis, ijk_axis_to_edge_index
-from foundation.storage import write_checked
-from methods.core.weights import WeightsError, read_weights_file
+from methods.core.weights import WeightsError, read_weights_file, write_weights_file
 from methods.extractors.rec7 import RECEPTIVE_PADDING, Rec7Network, sparse_forward
 
 #: Input channels: o of the x, y, z edges from a point, then s - 1/2 of the same edges.
@@ -121,13 +117,8 @@ def weights_path() -> Path:
 def save_weights(path: str | Path, network: Rec7Network, info: dict) -> str:
     """Write the network and ``info`` (budget, training shapes, losses...) to ``path``, atomically and
     checksummed; returns the SHA-256 of the payload."""
-    buf = io.BytesIO()
-    torch.save({"network": network.state_dict(), "config": dict(network.config), "info": dict(info)}, buf)
-    payload = buf.getvalue()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_checked(path, payload)
-    return hashlib.sha256(payload).hexdigest()
+    return write_weights_file(path, {"network": network.state_dict(), "config": dict(network.config),
+                                     "info": dict(info)})
 
 
 def _training_command(path: Path) -> str:

@@ -26,8 +26,6 @@ training recipe is :mod:`methods.training.undc`, the registered method ``udf-ndc
 
 from __future__ import annotations
 
-import hashlib
-import io
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,10 +36,9 @@ import torch
 from foundation.fields import default_band
 from foundation.grid import index_to_world, spacing
 from foundation.raster import grid_line_hits
-from foundation.storage import write_checked
 from foundation.timing import stage
 from methods.base import Extraction
-from methods.core.weights import WeightsError, read_weights_file  # noqa: F401 (WeightsError: what load_weights raises)
+from methods.core.weights import WeightsError, read_weights_file, write_weights_file  # noqa: F401 (WeightsError: what load_weights raises)
 from methods.extractors.rec7 import DEFAULT_CHANNELS, RECEPTIVE_PADDING, Rec7Network, sparse_forward
 
 #: Input clip, voxel units (NDC's data loader clips to [-2, 2]; the UDF is >= 0).
@@ -436,14 +433,8 @@ def weights_path() -> Path:
 def save_weights(path: str | Path, bool_network: UNDCNetwork, float_network: UNDCNetwork, info: dict) -> str:
     """Write both networks and ``info`` (budget, training-set digest, losses...) to ``path``, atomically
     and checksummed (:func:`foundation.storage.write_checked`). Returns the SHA-256 of the payload."""
-    buf = io.BytesIO()
-    torch.save({"bool": bool_network.state_dict(), "float": float_network.state_dict(),
-                "config": dict(bool_network.config), "info": dict(info)}, buf)
-    payload = buf.getvalue()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_checked(path, payload)
-    return hashlib.sha256(payload).hexdigest()
+    return write_weights_file(path, {"bool": bool_network.state_dict(), "float": float_network.state_dict(),
+                                     "config": dict(bool_network.config), "info": dict(info)})
 
 
 def _training_command(path: Path) -> str:
