@@ -2,12 +2,17 @@
 (NaN metrics and their status), with the columns RESULTS.md's tables are computed from.
 
     python scripts/export_results.py RUN_DIR [RUN_DIR ...] --commit SHA --out docs/results/NAME.csv
+    python scripts/export_results.py RUN_DIR --components --commit SHA --out docs/results/NAME.csv
 
 Columns: ``shape, method, seed, mode, budget, input, cd, nc, f1_005, f1_01, ecd, ef1, n_faces,
 status, error, seen_in_training, commit``. ``input``: ``mesh`` for the encode task (the GT mesh's
 exact fields), else the reconstruct task's input cloud (``uniform``, ``scan``, ``noise-2``, ...).
 ``commit``: the commit whose code computed the rows (the frozen worktree a long run ran from).
 Rows are sorted by method, shape and seed; numbers keep 9 significant digits.
+
+``--components`` exports a ``--decompose`` run's extractions instead (its components.csv): one row
+per job and set of exact components, columns :data:`COMPONENT_COLUMNS` (``exact``: the components
+taken from the exact field, e.g. ``flags+normals``).
 """
 
 from __future__ import annotations
@@ -22,6 +27,9 @@ import pandas as pd
 COLUMNS = ["shape", "method", "seed", "mode", "budget", "input", "cd", "nc", "f1_005", "f1_01", "ecd", "ef1",
            "n_faces", "status", "error", "seen_in_training", "commit"]
 
+COMPONENT_COLUMNS = ["shape", "method", "seed", "exact", "cd", "nc", "f1_005", "f1_01", "ecd", "ef1", "n_faces",
+                     "extract_s", "commit"]
+
 
 def run_input(run_dir: Path) -> str:
     """What a run's jobs read: ``mesh`` (encode) or its reconstruct input (``pc_corruption``)."""
@@ -34,10 +42,14 @@ def job_rows(run_dir: Path, commit: str) -> pd.DataFrame:
     frame = pd.read_csv(run_dir / "results.csv")
     frame["input"] = run_input(run_dir)
     frame["commit"] = commit
-    for column in COLUMNS:
-        if column not in frame:
-            frame[column] = float("nan")
-    return frame[COLUMNS]
+    return frame.reindex(columns=COLUMNS)
+
+
+def component_rows(run_dir: Path, commit: str) -> pd.DataFrame:
+    """The decomposition rows of one run directory (its components.csv) in :data:`COMPONENT_COLUMNS`."""
+    frame = pd.read_csv(run_dir / "components.csv")
+    frame["commit"] = commit
+    return frame.reindex(columns=COMPONENT_COLUMNS)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -45,18 +57,25 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("runs", nargs="+", type=Path, help="finished run directories")
     parser.add_argument("--commit", required=True, help="the commit whose code computed the rows")
     parser.add_argument("--out", type=Path, required=True, help="the CSV to write")
+    parser.add_argument("--components", action="store_true",
+                        help="export the runs' --decompose extractions (components.csv) instead of their jobs")
     args = parser.parse_args(argv)
+    table_file, rows = ("components.csv", component_rows) if args.components else ("results.csv", job_rows)
     frames = []
     for run in args.runs:
-        if not (run / "results.csv").is_file():
-            print(f"export_results: {run} has no results.csv (run `run_benchmark.py report {run}` first)",
-                  file=sys.stderr)
+        if not (run / table_file).is_file():
+            print(f"export_results: {run} has no {table_file} (run `run_benchmark.py report {run}` first"
+                  + (", on a --decompose run" if args.components else "") + ")", file=sys.stderr)
             return 2
-        frames.append(job_rows(run, args.commit))
-    table = pd.concat(frames, ignore_index=True).sort_values(["method", "shape", "seed"], kind="stable")
+        frames.append(rows(run, args.commit))
+    keys = ["method", "shape", "seed"] + (["exact"] if args.components else [])
+    table = pd.concat(frames, ignore_index=True).sort_values(keys, kind="stable")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     table.to_csv(args.out, index=False, float_format="%.9g")
-    print(f"wrote {args.out}: {len(table)} jobs ({int((table.status == 'ok').sum())} ok)")
+    if args.components:
+        print(f"wrote {args.out}: {len(table)} extractions")
+    else:
+        print(f"wrote {args.out}: {len(table)} jobs ({int((table.status == 'ok').sum())} ok)")
     return 0
 
 

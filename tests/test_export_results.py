@@ -35,3 +35,20 @@ def test_every_job_with_its_status_input_and_commit(tmp_path):
     assert np.isnan(failed["cd"]) and failed["error"].startswith("fit:")
     assert list(table["input"]) == ["scan", "mesh", "mesh"] and set(table["commit"]) == {"abc1234"}
     assert script.main([str(tmp_path / "nope"), "--commit", "x", "--out", str(out)]) == 2
+
+
+def test_components_export_one_row_per_job_and_exact_set(tmp_path):
+    script = load_script("export_results")
+    run = _run(tmp_path / "run", "encode", "uniform", [{"shape": "a", "method": "sals", "seed": 0, "status": "ok"}])
+    pd.DataFrame([
+        {"shape": "a", "method": "sals", "seed": 0, "exact": "normals", "cd": 0.002, "ef1": 0.9, "n_faces": 10,
+         "extract_s": 0.1, "component_hash": "h"},
+        {"shape": "a", "method": "sals", "seed": 0, "exact": "flags", "cd": 0.001, "ef1": 0.8, "n_faces": 12,
+         "extract_s": 0.2, "component_hash": "h"}]).to_csv(run / "components.csv", index=False)
+    out = tmp_path / "out.csv"
+    assert script.main([str(run), "--components", "--commit", "abc1234", "--out", str(out)]) == 0
+    table = pd.read_csv(out)
+    assert list(table.columns) == script.COMPONENT_COLUMNS
+    assert list(table["exact"]) == ["flags", "normals"] and list(table["ef1"]) == [0.8, 0.9]
+    (run / "components.csv").unlink()
+    assert script.main([str(run), "--components", "--commit", "x", "--out", str(out)]) == 2
