@@ -125,7 +125,7 @@ def test_clouds_without_a_gt_are_reconstructed_and_listed_apart_from_the_scored(
     out = tmp_path / "run"
     assert main(["--task", "reconstruct", "--dataset", "pointclouds", "--data-dir", str(path), "--methods", "poisson",
                  "--grid", "32", "--eval-points", "5000", "--out", str(out), "--quiet", "--cache-dir",
-                 str(tmp_path / "c")]) == 0
+                 str(tmp_path / "c"), "--executor", "local"]) == 0
     jobs = pd.read_csv(out / "results.csv").set_index("shape")
     assert (jobs["status"] == "ok").all() and jobs.loc["scan", "n_faces"] > 0
     assert jobs.loc["scan", "scored"] == 0 and np.isnan(jobs.loc["scan", "cd"]) and np.isnan(jobs.loc["scan", "ef1"])
@@ -144,7 +144,8 @@ def test_a_reconstruct_run_uses_the_files_points(folder, tmp_path, capsys):
     path, _ = folder
     out = tmp_path / "run"
     args = ["--dataset", "pointclouds", "--data-dir", str(path), "--methods", "poisson", "--grid", "32",
-            "--eval-points", "5000", "--out", str(out), "--quiet", "--cache-dir", str(tmp_path / "c")]
+            "--eval-points", "5000", "--out", str(out), "--quiet", "--cache-dir", str(tmp_path / "c"),
+            "--executor", "local"]
     assert main(["--task", "reconstruct", *args]) == 0
     (info,) = sqlite3.connect(out / "results.db").execute("SELECT info FROM jobs").fetchone()
     assert json.loads(info)["input_points"] == 3000

@@ -362,7 +362,7 @@ def test_neural_run_fits_caches_weights_and_records_nan_loss(fakes, tmp_path):
     cache = tmp_path / "cache"
     args = ["--methods", "test_sdf", "test_nan", "--mode", "neural", "--budget", "tiny", "--grid", "24",
             "--eval-points", "5000", "--limit", "1", "--cache-dir", str(cache), "--plugin", PLUGIN, "--quiet",
-            "--threads", "1"]
+            "--threads", "1", "--executor", "local"]
     assert main(args + ["--out", str(tmp_path / "a")]) == EXIT_FAILED_TASKS
     a = read_results(tmp_path / "a").set_index("method")
     assert a.loc["test_sdf", "status"] == "ok", a.loc["test_sdf", "error"]
@@ -385,7 +385,7 @@ def test_registered_methods_oracle_end_to_end(tmp_path):
     methods = available_methods()
     out = tmp_path / "run"
     code = main(["--mode", "oracle", "--grid", "32", "--eval-points", "20000", "--limit", "1",
-                 "--out", str(out), "--cache-dir", str(tmp_path / "cache"), "--quiet"])
+                 "--out", str(out), "--cache-dir", str(tmp_path / "cache"), "--quiet", "--executor", "local"])
     assert code == 0
     df = read_results(out)
     assert list(df.method) == methods and (df.status == "ok").all(), df[["method", "error"]]
@@ -397,7 +397,7 @@ def test_checkpoints_give_one_row_each_with_increasing_step_and_an_anytime_plot(
     out = tmp_path / "run"
     args = ["--methods", "test_sdf", "--mode", "neural", "--budget", "tiny", "--grid", "24", "--eval-points", "5000",
             "--limit", "1", "--cache-dir", str(tmp_path / "cache"), "--plugin", PLUGIN, "--quiet", "--threads", "1",
-            "--checkpoints", "0.25,0.5,1", "--out", str(out)]
+            "--executor", "local", "--checkpoints", "0.25,0.5,1", "--out", str(out)]
     assert main(args) == 0
     ck = pd.read_csv(out / "checkpoints.csv")
     job = read_results(out).iloc[0]
@@ -478,7 +478,7 @@ def test_a_changed_method_is_refused_in_its_run_directory_or_recomputed_on_reque
     out = tmp_path / "run"
     args = ["--methods", "test_probe", "test_occ", "--mode", "oracle", "--grid", "32", "--eval-points", "20000",
             "--limit", "1", "--out", str(out), "--no-cache", "--plugin", PLUGIN,
-            "--plugin", "zz_probe_method:register", "--quiet"]
+            "--plugin", "zz_probe_method:register", "--quiet", "--executor", "local"]
 
     def run(source, *extra):
         probe.write_text(source)

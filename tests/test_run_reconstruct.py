@@ -59,7 +59,8 @@ def test_a_scan_run_gives_poisson_its_sensors_and_says_so(tmp_path):
 def test_poisson_runs_as_a_reconstruct_task_end_to_end(tmp_path):
     out = tmp_path / "run"
     code = main(["--task", "reconstruct", "--methods", "poisson", "--limit", "1", "--grid", "32", "--pc-points",
-                 "5000", "--eval-points", "5000", "--out", str(out), "--quiet", "--cache-dir", str(tmp_path / "c")])
+                 "5000", "--eval-points", "5000", "--out", str(out), "--quiet", "--cache-dir", str(tmp_path / "c"),
+                 "--executor", "local"])
     assert code == 0
     df = pd.read_csv(out / "results.csv")
     assert list(df.method) == ["poisson"] and (df.status == "ok").all()
@@ -216,7 +217,7 @@ def test_the_robustness_recipe_runs_every_corruption_and_writes_its_tables(tmp_p
     out = tmp_path / "run"
     code = main(["--recipe", "robustness", "--methods", "poisson", "--limit", "1", "--grid", "32",
                  "--pc-points", "5000", "--eval-points", "5000", "--out", str(out), "--quiet", "--gallery", "0",
-                 "--cache-dir", str(tmp_path / "c")])
+                 "--cache-dir", str(tmp_path / "c"), "--executor", "local"])
     assert code == 0
     df = pd.read_csv(out / "results.csv")
     assert len(df) == 17 and (df.status == "ok").all()

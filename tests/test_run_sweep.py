@@ -140,7 +140,7 @@ def test_a_killed_sweep_resumes_to_the_uninterrupted_table(tmp_path):
     env = {**os.environ, "SALSBENCH_CACHE": str(tmp_path / "cache")}
     args = ["--methods", "test_sdf", "test_occ", "--mode", "oracle", "--eval-points", "5000", "--limit", "2",
             "--sweep", "grid=20,24", "--sweep", "test_sdf.level=0,0.01", "--no-cache", "--plugin", PLUGIN,
-            "--quiet", "--gallery", "0"]
+            "--quiet", "--gallery", "0", "--executor", "local"]
     killed = tmp_path / "killed"
     kill_after_ok_jobs(args, killed, env, ok_jobs=2)
     resumed = subprocess.run([sys.executable, "run_benchmark.py", "--resume", "--out", str(killed)], cwd=REPO,
