@@ -84,9 +84,10 @@ def test_weights_trained_on_an_evaluation_shape_are_refused_in_one_line(tmp_path
 
 
 @pytest.mark.slow
-def test_the_tiny_training_is_deterministic():
+def test_the_tiny_training_is_deterministic_and_learns():
     """Two trainings with the same seed give the same weights and losses bit for bit (the fits, the
-    crops and the initialisation are seeded), and they are trained on no evaluation shape."""
+    crops and the initialisation are seeded), they are trained on no evaluation shape, and the loss
+    falls from its first steps to its last (the margins over seeds and float paths: docs/TESTING.md)."""
     from methods.training.learned_flags import learned_flags_training_shapes, train
 
     shapes = learned_flags_training_shapes("tiny")
@@ -95,3 +96,4 @@ def test_the_tiny_training_is_deterministic():
     for (name, x), (_, y) in zip(a.network.state_dict().items(), b.network.state_dict().items()):
         assert torch.equal(x, y), name
     assert np.array_equal(a.losses, b.losses) and np.isfinite(a.losses).all()
+    assert a.losses[-10:].mean() < a.losses[:10].mean()
