@@ -12,11 +12,14 @@ refused unread, whoever wrote its checksum.
 from __future__ import annotations
 
 import functools
+import hashlib
 import io
+from pathlib import Path
 from typing import Callable
 
 import torch
 
+from foundation.storage import CorruptEntry, read_checked, write_checked
 from methods.core.device import get_device
 
 
@@ -79,10 +82,6 @@ def read_weights_file(path, what: str, train_command: str, env: str) -> tuple[di
     (:func:`foundation.storage.write_checked`); :class:`WeightsError` in one line naming the file:
     absent (with ``train_command``, the command that trains it, and ``env``, the variable that names
     another file), damaged (re-train), or not plain data (:func:`load_plain`)."""
-    import hashlib
-
-    from foundation.storage import CorruptEntry, read_checked
-
     try:
         payload = read_checked(path)
     except CorruptEntry as exc:
@@ -95,8 +94,6 @@ def read_weights_file(path, what: str, train_command: str, env: str) -> tuple[di
 def load_cached(path, load: Callable):
     """``load(path)``, memoised per process by the file's (path, size, modification time), so a
     rewritten file is read again; an absent file calls ``load`` (which raises its one-line error)."""
-    from pathlib import Path
-
     path = Path(path)
     if not path.is_file():
         return load(path)
@@ -113,11 +110,6 @@ def write_weights_file(path, blob: dict) -> str:
     """``torch.save`` of the plain ``blob`` (state dicts, config, info) to ``path``, atomically and
     checksummed (:func:`foundation.storage.write_checked`), its folder made; returns the SHA-256 of the
     payload (what :func:`read_weights_file` returns for it)."""
-    import hashlib
-    from pathlib import Path
-
-    from foundation.storage import write_checked
-
     buf = io.BytesIO()
     torch.save(blob, buf)
     payload = buf.getvalue()
