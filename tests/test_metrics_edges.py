@@ -1,5 +1,6 @@
 """Sharp-edge points (foundation.metrics.edges): exact against brute force, the twelve edges of a
-cube, none on a sphere, and the refusal of searches that would take minutes."""
+cube, none on a sphere, dense samples of few normals decided exactly, and the refusal of searches
+that would take minutes."""
 
 from __future__ import annotations
 
@@ -84,13 +85,49 @@ def test_no_edge_points_on_a_sphere_and_gt_without_edges_gives_ecd_0_ef1_1():
     assert r["ecd"] == 0.0 and r["ef1"] == 1.0 and r["ecd_flag"] is False
 
 
-def test_too_dense_edge_search_is_refused_not_crashed():
-    """A prediction 1000x smaller than the GT: all its samples lie within one edge radius, so the
-    exact search would test n^2 pairs. It is refused with a one-line reason; ECD/EF1 are NaN."""
+def test_dense_samples_of_few_normals_are_decided_exactly():
+    """Samples far denser than the radius with few distinct normals are decided per normal group:
+    the same mask as brute force past the pair limit. A cube 100x smaller than r: every sample has
+    a perpendicular face within r (all edge points). A regular octahedron: adjacent and opposite
+    faces meet at |n.n| = 1/3 >= 0.2, so none. Zero normals pair with any other sample, not themselves."""
+    rng = np.random.default_rng(3)
     v, f = box(2.0)
-    points, normals = sample_surface(v * 1e-3, f, 20_000, np.random.default_rng(0))
+    points, normals = sample_surface(v * 1e-3, f, 3000, rng)
+    got = M.sharp_edge_points(points, normals, 0.2, max_pairs=10)
+    assert got.all() and np.array_equal(got, brute_force_edge_points(points, normals, 0.2))
+    octahedron_v = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
+    octahedron_f = np.array([[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]])
+    points, normals = sample_surface(octahedron_v * 1e-3, octahedron_f, 3000, rng)
+    assert len(np.unique(np.abs(normals @ normals.T).round(9))) == 2  # 1/3 and 1
+    assert not M.sharp_edge_points(points, normals, 0.2, max_pairs=10).any()
+    points = rng.random((500, 3)) * 1e-3
+    normals = np.zeros((500, 3))
+    normals[:250] = [0.0, 0.0, 1.0]
+    points[-1] = [5.0, 5.0, 5.0]  # a zero-normal sample with no other sample within r
+    got = M.sharp_edge_points(points, normals, 0.01, max_pairs=10)
+    assert np.array_equal(got, M.sharp_edge_points(points, normals, 0.01))
+    assert got[:-1].all() and not got[-1]
+
+
+def test_edge_points_of_a_tiny_prediction_give_its_ef1():
+    """A cube 1000x smaller than its GT cube: every sample is an edge point, decided exactly (its
+    search bound ~1e10 pairs passes the default limit); EF1 is a number, near 0 (all far from the GT's
+    edges)."""
+    v, f = box(2.0)
+    r = M.evaluate(v, f, v * 1e-3, f, n_points=100_000)
+    assert r["edge_search_skipped"] == "" and r["pred_edge_points"] == 100_000
+    assert np.isfinite(r["ecd"]) and r["ef1"] < 0.01 and np.isfinite(r["cd"])
+
+
+def test_too_dense_edge_search_of_many_normals_is_refused_not_crashed():
+    """A sphere 1000x smaller than the GT: all its samples lie within one edge radius and its normals
+    take thousands of values, so the exact search would test n^2 pairs. It is refused with a one-line
+    reason; ECD/EF1 are NaN."""
+    v, f = box(2.0)
+    sv, sf = sphere()
+    points, normals = sample_surface(sv * 1e-3, sf, 20_000, np.random.default_rng(0))
     with pytest.raises(M.EdgeSearchTooDense, match="too dense"):
         M.sharp_edge_points(points, normals, 0.01, max_pairs=1e6)
-    r = M.evaluate(v, f, v * 1e-3, f, n_points=100_000)  # bound ~1e10 > the 1e9 default
+    r = M.evaluate(v, f, sv * 1e-3, sf, n_points=100_000)  # bound ~1e10 > the 1e9 default
     assert r["edge_search_skipped"].startswith("prediction edge-point search too dense")
     assert r["pred_edge_points"] == -1 and math.isnan(r["ecd"]) and math.isnan(r["ef1"]) and np.isfinite(r["cd"])

@@ -2,7 +2,9 @@
 
 A sample ``p`` is an edge point when a sample ``q`` of the same set lies within ``r`` of it
 (``|p - q| <= r``) with ``|n_p . n_q| < 0.2``. :func:`sharp_edge_points` finds them exactly, fast
-enough for 1M samples, and refuses (:class:`EdgeSearchTooDense`) inputs whose search would take
+enough for 1M samples; a set far denser than ``r`` (a degenerate prediction much smaller than its
+GT) is still decided exactly when its normals take few distinct values (the faces of a small
+polyhedron), and refused (:class:`EdgeSearchTooDense`) otherwise, where the search would take
 minutes and tens of GB.
 """
 
@@ -11,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["sharp_edge_points", "EdgeSearchTooDense", "MAX_EDGE_PAIRS"]
+__all__ = ["sharp_edge_points", "EdgeSearchTooDense", "MAX_EDGE_PAIRS", "MAX_NORMAL_GROUPS"]
 
 _MAX_CELLS_PER_AXIS = 1 << 20
 _PAIR_BLOCK = 100_000
@@ -21,6 +23,10 @@ _DOT_CHUNK = 4_000_000
 #: (cell counts times 27-neighbourhood counts, above the true count; the bound of 1M-sample CAD
 #: meshes: docs/PERFORMANCE.md, section 8).
 MAX_EDGE_PAIRS = 1_000_000_000
+#: Most distinct normals for which a search past ``max_pairs`` is still decided, one nearest-neighbour
+#: query per sample (:func:`_edge_points_by_normal_groups`): a mesh's samples carry their face's
+#: normal, so a prediction of up to this many face orientations.
+MAX_NORMAL_GROUPS = 64
 
 
 class EdgeSearchTooDense(ValueError):
@@ -53,8 +59,10 @@ def sharp_edge_points(
        ``<=``, like sklearn's ``query_radius`` that NDC uses), in slabs of cell layers along the
        longest axis (each slab plus one layer of halo), so memory stays bounded.
 
-    Raises :class:`EdgeSearchTooDense` (one line) when the cell counts bound the candidate pairs
-    above ``max_pairs`` (samples far denser than the radius: minutes of work and tens of GB).
+    When the cell counts bound the candidate pairs above ``max_pairs`` (samples far denser than the
+    radius) and the normals take at most :data:`MAX_NORMAL_GROUPS` distinct values, the same test is
+    decided per group of equal normals instead (:func:`_edge_points_by_normal_groups`); with more,
+    raises :class:`EdgeSearchTooDense` (one line: minutes of work and tens of GB).
     The filter assumes unit (or zero) normals; with other normals it is skipped (plain exact search).
     """
     points = np.ascontiguousarray(points, dtype=np.float64)
@@ -78,6 +86,9 @@ def sharp_edge_points(
     max_angle = np.arccos(dot_threshold) - 1e-6 if unit and dot_threshold <= 1.0 else -1.0
     candidate, pair_bound = _unsafe_points(keys, normals, dims, max_angle)
     if pair_bound > max_pairs:
+        group_normals, group = np.unique(normals, axis=0, return_inverse=True)
+        if len(group_normals) <= MAX_NORMAL_GROUPS:
+            return _edge_points_by_normal_groups(points, group_normals, group.reshape(-1), radius, dot_threshold)
         raise EdgeSearchTooDense(
             f"edge-point search too dense: up to {pair_bound:.3g} sample pairs within r = {radius:.4g} "
             f"(limit {max_pairs:.3g}); the samples span only {extent:.4g}"
@@ -103,6 +114,30 @@ def sharp_edge_points(
             hit = np.abs(np.einsum("ij,ij->i", normals[i], normals[j])) < dot_threshold
             flags[i[hit]] = True
             flags[j[hit]] = True
+    return flags
+
+
+def _edge_points_by_normal_groups(points: np.ndarray, group_normals: np.ndarray, group: np.ndarray, radius: float,
+                                  dot_threshold: float) -> np.ndarray:
+    """:func:`sharp_edge_points` for samples whose normals take few distinct values, at any density.
+
+    ``group_normals[group[i]]`` is the normal of sample ``i``. A sample of group ``a`` is an edge point
+    exactly when its nearest other sample among the groups ``b`` with ``|n_a . n_b| < dot_threshold``
+    lies within ``radius`` (inclusive): one KD-tree per group over those groups' samples and one
+    nearest-neighbour query per sample (its own index excluded, which only matters for a group
+    perpendicular to itself, i.e. zero normals), whatever the number of pairs within ``radius``.
+    """
+    flags = np.zeros(len(points), dtype=bool)
+    perpendicular = np.abs(group_normals @ group_normals.T) < dot_threshold
+    order = np.argsort(group, kind="stable")
+    members = np.split(order, np.cumsum(np.bincount(group, minlength=len(group_normals)))[:-1])
+    reach = np.nextafter(float(radius), np.inf)
+    for a in np.flatnonzero(perpendicular.any(axis=1)):  # a loop over at most MAX_NORMAL_GROUPS groups
+        others = np.concatenate([members[b] for b in np.flatnonzero(perpendicular[a])])
+        distance, nearest = cKDTree(points[others]).query(points[members[a]], k=2, distance_upper_bound=reach)
+        itself = others[np.minimum(nearest[:, 0], len(others) - 1)] == members[a]
+        closest = np.where(itself, distance[:, 1], distance[:, 0])
+        flags[members[a][closest <= radius]] = True
     return flags
 
 
