@@ -224,6 +224,17 @@ def check_fields(instance, what: str) -> None:
         object.__setattr__(instance, name, param.parse(getattr(instance, name), label))
 
 
+def parsed_values(params: Mapping[str, Param], given: Mapping[str, Any], what: str) -> dict[str, Any]:
+    """Every parameter of ``params`` at its default, with ``given`` parsed and checked over it (named
+    ``what.NAME`` in messages); :class:`ParamError` naming unknown names and the known ones."""
+    unknown = sorted(set(given) - set(params))
+    if unknown:
+        raise ParamError(f"{what} has no parameter(s) {', '.join(unknown)}; known: {', '.join(sorted(params)) or 'none'}")
+    values = {k: p.default for k, p in params.items()}
+    values.update({k: params[k].parse(v, f"{what}.{k}") for k, v in given.items()})
+    return values
+
+
 def with_overrides(base, overrides: Mapping[str, Any] | None, params: Mapping[str, Param], what: str):
     """The frozen dataclass ``base`` with ``overrides`` applied, each typed and checked by its
     :class:`Param` in ``params`` (named ``what.NAME`` in messages); unknown names list the known ones."""

@@ -27,7 +27,7 @@ from typing import Any, ClassVar, Iterator, Mapping
 import numpy as np
 
 from foundation.registry import Registry
-from foundation.params import Param, ParamError
+from foundation.params import Param, parsed_values
 from methods.core.budgets import BUDGET_FAMILIES, BudgetFamily
 from methods.core.device import get_device
 
@@ -95,8 +95,9 @@ class Method:
     output_dim: ClassVar[int] = 1
     extractor: ClassVar[str] = ""
     parameters: ClassVar[dict[str, Param]] = {}
-    #: The benchmark task the method serves: ``'encode'`` (:class:`FieldMethod`), ``'reconstruct'``
-    #: (:class:`PointCloudMethod`) or ``'score'`` (meshes made elsewhere).
+    #: The benchmark task the method serves: ``'encode'`` (:class:`FieldMethod`) or ``'reconstruct'``
+    #: (:class:`PointCloudMethod`). (The ``score`` task's rows are folders of meshes, not methods:
+    #: :mod:`tasks.rows`.)
     task: ClassVar[str] = ""
     #: Whether the method needs a network trained across shapes (:class:`LearnedPointCloudMethod`).
     learned: ClassVar[bool] = False
@@ -122,13 +123,7 @@ class Method:
         cls.fit_name = cls.fit_of or cls.name
 
     def __init__(self, **params: Any):
-        unknown = sorted(set(params) - set(self.parameters))
-        if unknown:
-            raise ParamError(f"method '{self.name}' has no parameter(s) {', '.join(unknown)}; "
-                             f"known: {', '.join(sorted(self.parameters)) or 'none'}")
-        self.params = {k: p.default for k, p in self.parameters.items()}
-        for key, value in params.items():
-            self.params[key] = self.parameters[key].parse(value, f"{self.name}.{key}")
+        self.params = parsed_values(self.parameters, params, self.name)
 
     @classmethod
     def budget_fields(cls) -> frozenset[str]:

@@ -142,7 +142,9 @@ def _comma_list(text: str) -> tuple[str, ...]:
 
 def parse_method_params(items: Sequence[str] | None, plugins: Sequence[str]) -> dict[str, dict[str, Any]]:
     """``['sals.o_threshold=0.2']`` -> ``{'sals': {'o_threshold': 0.2}}``, typed by the method's
-    :class:`foundation.params.Param` (ConfigError naming the bad item otherwise)."""
+    :class:`foundation.params.Param` (ConfigError naming the bad item otherwise). A name that is no
+    registered method keeps its values as text: the run's task types them by its row
+    (:func:`tasks.rows.row_kind`: a score run's predictions) or refuses the name."""
     if not items:
         return {}
     import_plugins(plugins)
@@ -154,6 +156,9 @@ def parse_method_params(items: Sequence[str] | None, plugins: Sequence[str]) -> 
         method, dot, name = lhs.partition(".")
         if not (eq and dot and method and name):
             raise ConfigError(f"--method-param '{item}': use METHOD.NAME=VALUE (e.g. sals.o_threshold=0.2)")
+        if method not in METHODS:
+            out.setdefault(method, {})[name] = raw
+            continue
         try:
             cls = METHODS.get(method)
             if name not in cls.parameters:
@@ -329,8 +334,8 @@ def _take(argv: list[str], flag: str, default: str | None = None) -> str | None:
 def score_main(argv: Sequence[str]) -> int:
     """``run_benchmark.py score --pred-dir DIR --name NAME [--pred-frame original|canonical] [--dataset ...
     --out ...]``: score a folder of meshes made elsewhere as the method NAME of a run of ``--task
-    score`` (:mod:`runner.external`); every other setting as for a run."""
-    from runner.external import register_external
+    score`` (:mod:`tasks.score`); every other setting as for a run."""
+    from tasks.rows import predictions_row
     from tasks.score import FRAMES
 
     argv = list(argv)
@@ -343,7 +348,7 @@ def score_main(argv: Sequence[str]) -> int:
         folder = Path(pred_dir).expanduser().resolve()
         if not folder.is_dir():
             raise ConfigError(f"--pred-dir {pred_dir}: not a folder")
-        register_external(name, str(folder), frame)
+        predictions_row(name)
     except (ConfigError, ValueError) as exc:
         print(f"run_benchmark.py: error: {exc}", file=sys.stderr)
         return EXIT_REFUSED

@@ -86,17 +86,24 @@ def report_context(record: dict[str, Any]) -> dict[str, Any]:
         "device": env.get("device"), "cpu_model": env.get("cpu_model"), "gpu": env.get("gpu"),
         "git_commit": env.get("git_commit"), "sweep": sweep_of(record),
         "budget_params": config.get("budget_params", {}), "execution": record.get("execution"),
-        "method_notes": method_notes(resolved.get("methods", [])),
+        "method_notes": method_notes(config.get("task", "encode"), resolved.get("methods", []),
+                                     resolved.get("method_params", {})),
         "up_axis": up_axis_of(config.get("dataset")),
     }
 
 
-def method_notes(names) -> dict[str, str]:
-    """{method: its table note} of the registered methods among ``names`` that have one."""
-    from methods.base import METHODS, presentation
+def method_notes(task: str, names, params: dict) -> dict[str, str]:
+    """{method: its table note} of the rows ``names`` of ``task`` that have one (a name no longer
+    known, e.g. an unloaded plugin's, has none)."""
+    from tasks.rows import row_kind
 
-    known = set(METHODS.names())
-    return {n: presentation(n).note for n in names if n in known and presentation(n).note}
+    notes = {}
+    for name in names:
+        try:
+            notes[name] = row_kind(task, name, params.get(name)).note
+        except ValueError:
+            continue
+    return {n: note for n, note in notes.items() if note}
 
 
 def export(run_dir: str | Path, db=None, record: dict[str, Any] | None = None,

@@ -1,5 +1,6 @@
 """Resolution of a run configuration: :func:`resolve` turns a :class:`runner.config.RunConfig`
-into a :class:`Plan` (plugins imported, method and parameter names checked against the registry,
+into a :class:`Plan` (plugins imported, each row of the task looked up (:func:`tasks.rows.row_kind`:
+a registered method, or the score task's predictions) and its parameters checked,
 budgets looked up, the sweep typed and expanded into validated :class:`Variant` points, the dataset
 built and its shapes listed). Every check raises :class:`runner.config.ConfigError` with one
 line, before any work starts.
@@ -14,6 +15,7 @@ from typing import Any
 
 from runner.config import ConfigError, RunConfig, import_plugins
 from tasks import FloorSpec, JobSpec
+from tasks.rows import RowKind, row_kind
 
 
 @dataclass(frozen=True)
@@ -35,6 +37,8 @@ class Variant:
 
     def applicable(self, method: str) -> dict[str, Any]:
         """The values of the keys a job of ``method`` in this variant's mode depends on."""
+        if not self.values:
+            return {}
         return {k: v for k, v in self.values.items() if self.keys[k].applies_to(method, self.config.mode)}
 
 
@@ -43,6 +47,7 @@ class Plan:
     """A resolved run: every name looked up, every parameter typed, the shapes listed.
 
     methods : names in display order. method_params : full, typed parameters per method.
+    rows : the :class:`tasks.rows.RowKind` of each method (what the run layer knows of its row).
     budgets : the budget record of each budget family whose methods fit or train in this run
         (``{family: record}``; empty in oracle mode and for classic reconstruction). preset : the
         metric preset.
@@ -64,6 +69,7 @@ class Plan:
     variants: tuple["Variant", ...] = ()
     train_dirs: tuple[str, ...] = ()
     training_set: dict[str, str] = field(default_factory=dict)
+    rows: dict[str, RowKind] = field(default_factory=dict)
 
     def record(self) -> dict[str, Any]:
         """The resolved facts for config.json (JSON-ready)."""
@@ -76,25 +82,6 @@ class Plan:
                 "metric_preset": self.preset.to_dict(), "eval_points": self.eval_points,
                 "protocol": self.preset.describe(self.eval_points),
                 "dataset_options": self.dataset_options, "shapes": list(self.shapes)}
-
-
-def _register_externals(config: RunConfig) -> None:
-    """Register the external methods a score run names (:mod:`runner.external`), each with its folder
-    of predictions, which must exist."""
-    from runner.external import register_external
-
-    if not config.methods:
-        raise ConfigError("--task score needs the predictions' method name (run_benchmark.py score --name NAME "
-                          "--pred-dir DIR)")
-    for name in config.methods:
-        params = dict(config.method_params.get(name, {}))
-        pred_dir = str(params.get("pred_dir", ""))
-        if not pred_dir or not Path(pred_dir).is_dir():
-            raise ConfigError(f"{name}.pred_dir {pred_dir or '(not given)'}: not a folder of predicted meshes")
-        try:
-            register_external(name, pred_dir, str(params.get("pred_frame", "original")))
-        except ValueError as exc:
-            raise ConfigError(str(exc)) from None
 
 
 def _existing(flag: str, value: str, kind: str) -> str:
@@ -111,25 +98,27 @@ def resolve(config: RunConfig) -> Plan:
             import_plugins([name])
         except (ImportError, AttributeError) as exc:
             raise ConfigError(f"--plugin {name}: cannot load ({type(exc).__name__}: {exc})") from None
-    if config.task == "score":
-        _register_externals(config)
     from foundation.metrics import PRESETS
-    from methods.base import METHODS, available_methods
+    from methods.base import available_methods
     from foundation.params import ParamError
 
     try:
         methods = tuple(config.methods) or tuple(available_methods(config.task))
-        for m in methods:
-            if METHODS.get(m).task != config.task:
-                raise ConfigError(f"method '{m}' belongs to the {METHODS.get(m).task} task, not to --task "
+        if not methods:
+            raise ConfigError(f"--task {config.task} has no method to run here: name its rows with --methods (a "
+                              f"score run: run_benchmark.py score --name NAME --pred-dir DIR)")
+        rows = {m: row_kind(config.task, m, config.method_params.get(m)) for m in methods}
+        for m, row in rows.items():
+            if row.task != config.task:
+                raise ConfigError(f"method '{m}' belongs to the {row.task} task, not to --task "
                                   f"{config.task} (its methods: {', '.join(available_methods(config.task))})")
-            if (reason := METHODS.get(m).unavailable()) is not None:
-                raise ConfigError(f"method '{m}' cannot run here: {reason}")
+            if row.unavailable is not None:
+                raise ConfigError(f"method '{m}' cannot run here: {row.unavailable}")
         for m in config.method_params:
             if m not in methods:
                 raise ConfigError(f"--method-param names method '{m}', which is not in --methods ({', '.join(methods)})")
-        params = {m: METHODS.get(m)(**config.method_params.get(m, {})).params for m in methods}
-        budgets = _budgets(config, methods)
+        params = {m: rows[m].checked_params(config.method_params.get(m, {})) for m in methods}
+        budgets = _budgets(config, rows)
         if config.metric_preset not in PRESETS:
             raise ConfigError(f"unknown metric preset '{config.metric_preset}'; known metric presets: "
                               f"{', '.join(PRESETS)}")
@@ -165,13 +154,13 @@ def resolve(config: RunConfig) -> Plan:
             raise ConfigError(f"--pc-corruption does not apply to dataset '{config.dataset}': its files are the "
                               f"clouds (a scan file carries its own sensors)")
     n = config.eval_points if config.eval_points is not None else preset.n_points
-    sweep, variants = _variants(config, methods)
-    learned = any(METHODS.get(m).learned for m in methods)
+    sweep, variants = _variants(config, rows)
+    learned = any(row.learned for row in rows.values())
     train_dirs = _train_dirs(config, methods) if budgets and learned else ()
     from tasks.trained_networks import training_folders_digest
 
     return Plan(config, methods, params, budgets, preset, int(n), options, tuple(shapes), sweep, variants, train_dirs,
-                training_folders_digest(train_dirs))
+                training_folders_digest(train_dirs), rows)
 
 
 def _train_dirs(config: RunConfig, methods: tuple[str, ...]) -> tuple[str, ...]:
@@ -193,34 +182,35 @@ def _train_dirs(config: RunConfig, methods: tuple[str, ...]) -> tuple[str, ...]:
     return dirs
 
 
-def _budgets(config: RunConfig, methods: tuple[str, ...]) -> dict[str, Any]:
+def _budgets(config: RunConfig, rows: dict[str, RowKind]) -> dict[str, Any]:
     """The budget record named ``config.budget`` of each budget family whose methods fit or train in
     this run, each with the overrides its family reads: ``{family: record}`` (empty in oracle mode
     and when no method trains). A family without that name refuses it, naming its budgets."""
-    from methods.base import METHODS
-    from runner.sweep import readable_budget_parameters, trains
+    from methods.base import budget_family
+    from runner.sweep import readable_budget_parameters
 
-    training = [m for m in methods if trains(m)] if config.budget is not None else []
+    training = [m for m, row in rows.items() if row.budget_family is not None] if config.budget is not None else []
     if config.budget_params and not training:
-        raise ConfigError(f"--budget-param: none of {', '.join(methods)} fits or trains under a budget")
+        raise ConfigError(f"--budget-param: none of {', '.join(rows)} fits or trains under a budget")
     readable_budget_parameters(training, config.budget_params)
     budgets: dict[str, Any] = {}
     for m in training:
-        cls = METHODS.get(m)
-        if cls.budget_family not in budgets:
-            budgets[cls.budget_family] = cls.budget(config.budget, config.budget_params)
+        row = rows[m]
+        if row.budget_family not in budgets:
+            mine = {k: v for k, v in config.budget_params.items() if k in row.budget_fields}
+            budgets[row.budget_family] = budget_family(row.budget_family).get(config.budget, mine)
     return budgets
 
 
-def _variants(config: RunConfig, methods: tuple[str, ...]) -> tuple[dict[str, tuple], tuple[Variant, ...]]:
+def _variants(config: RunConfig, rows: dict[str, RowKind]) -> tuple[dict[str, tuple], tuple[Variant, ...]]:
     """The typed sweep and its points: every combination in the run's mode, then (a neural sweep
     with ``ceiling``) the same combinations in oracle mode. Each point's config is rebuilt, so the
     RunConfig checks (grid memory, ranges) and the method/budget checks apply to every value."""
     from runner import sweep as sweeps
-    from methods.base import METHODS
     from foundation.params import ParamError
 
-    typed = sweeps.typed_sweep(config.sweep, methods, config.mode)
+    methods = tuple(rows)
+    typed = sweeps.typed_sweep(config.sweep, methods, config.mode) if config.sweep else {}
     keys = {k: sweeps.sweep_key(k, methods, config.mode) for k in typed}
     for name, key in keys.items():
         given = config.method_params.get(key.method, {}) if key.kind == "method" else (
@@ -247,8 +237,8 @@ def _variants(config: RunConfig, methods: tuple[str, ...]) -> tuple[dict[str, tu
             cfg = dataclasses.replace(config, **{"sweep": {}, "mode": mode, "method_params": method_params,
                                                  "budget_params": budget_params, **run})
             try:
-                _budgets(cfg, methods)
-                params = {m: METHODS.get(m)(**cfg.method_params.get(m, {})).params for m in methods}
+                _budgets(cfg, rows)
+                params = {m: rows[m].checked_params(cfg.method_params.get(m, {})) for m in methods}
             except (ParamError, ValueError) as exc:
                 where = f"--sweep point {sweeps.variant_tag(values)}: " if values else ""
                 raise ConfigError(where + str(exc).splitlines()[0]) from None
@@ -259,8 +249,7 @@ def _variants(config: RunConfig, methods: tuple[str, ...]) -> tuple[dict[str, tu
 def build_tasks(plan: Plan) -> tuple[list[FloorSpec], list[JobSpec]]:
     """Floor tasks (one per shape and evaluation sample count, first seed) and jobs (shapes x sweep
     points x methods x seeds, table order; a job that several sweep points share appears once)."""
-    from methods.base import METHODS
-    from runner.sweep import trains as method_trains, variant_tag
+    from runner.sweep import variant_tag
 
     c = plan.config
     common = dict(dataset=c.dataset, dataset_options=plan.dataset_options, metric_preset=c.metric_preset,
@@ -282,15 +271,16 @@ def build_tasks(plan: Plan) -> tuple[list[FloorSpec], list[JobSpec]]:
                 tag = "" if v.first or not values else variant_tag(values)
                 if vc.mode != c.mode:
                     tag = f"{vc.mode}" + (f",{tag}" if tag else "")
+                row = plan.rows[m]
+                trains = row.budget_family is not None
                 for seed in vc.seeds:
-                    trains = method_trains(m)
                     extra = {**reconstruct, "train_dirs": plan.train_dirs} if reconstruct and trains else reconstruct
-                    reads = METHODS.get(m).budget_fields()
+                    reads = row.budget_fields
                     job = JobSpec(shape=s, seed=seed, method=m, params=v.method_params[m], mode=vc.mode,
                                   budget=vc.budget if trains else None,
                                   budget_params={k: x for k, x in vc.budget_params.items() if k in reads}, grid=vc.grid,
                                   eval_points=vc.eval_points, checkpoints=vc.checkpoints, cache_dir=cache_dir,
-                                  decompose=vc.decompose and vc.mode == "neural" and bool(METHODS.get(m).components),
+                                  decompose=vc.decompose and vc.mode == "neural" and bool(row.components),
                                   sweep=values, variant=tag, task=vc.task, **extra, **common)
                     jobs.setdefault(job.key, job)
     return list(floors.values()), list(jobs.values())

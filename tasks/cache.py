@@ -186,10 +186,10 @@ def task_code_modules(spec) -> tuple[str, ...]:
     progress display and the reports are not among them: an edit there leaves every result valid."""
     modules = [spec.body, "tasks.load"]
     if spec.kind == "job":
-        from methods.base import METHODS
+        from tasks.rows import row_kind
 
-        modules.append(METHODS.get(spec.method).__module__)
-    return tuple(modules)
+        modules.append(row_kind(spec.task, spec.method).module)
+    return tuple(dict.fromkeys(modules))
 
 
 def task_code_digest(spec) -> str:

@@ -1,5 +1,9 @@
 """The score task: meshes made elsewhere, read, moved into the canonical frame and scored against
-the GT like any method's (``run_benchmark.py score``, :mod:`runner.external`).
+the GT like any method's (``run_benchmark.py score --pred-dir DIR --name NAME``). Its rows are not
+methods: each is a folder of predictions under the name the user gives it
+(:func:`tasks.rows.predictions_row`), with the parameters :data:`PARAMETERS`, beside the same floor
+rows and tables as any run, so ``run_benchmark.py report runs/A runs/B`` sets it beside the built-in
+methods on the same shapes.
 
 Matching rule (:func:`prediction_file`): the prediction of shape ``S`` is ``<pred_dir>/S.<ext>``,
 else ``<pred_dir>/S/NAME.<ext>``, for ``<ext>`` a mesh extension of
@@ -21,11 +25,18 @@ import csv
 import math
 from pathlib import Path
 
+from foundation.params import Param
 from foundation.timing import stage
 from tasks.context import TaskContext, score
 
 #: Frames a prediction may be given in.
 FRAMES = ("original", "canonical")
+#: The parameters of a row of the score task.
+PARAMETERS = {
+    "pred_dir": Param("", "folder of the predicted meshes (<shape>.<ext> or <shape>/<name>.<ext>)"),
+    "pred_frame": Param("original", "the frame of the predictions: original (the GT file's) or canonical",
+                        choices=FRAMES),
+}
 #: The optional per-shape seconds beside the predictions.
 SECONDS_FILE = "seconds.csv"
 
@@ -45,6 +56,12 @@ def run(ctx: TaskContext) -> None:
     if seconds is not None:
         ctx.timer.add("external_s", seconds)
     score(ctx, vertices, faces)
+
+
+def check_predictions(params: dict) -> None:
+    """ValueError (one line) unless ``params['pred_dir']`` is a folder."""
+    if not params["pred_dir"] or not Path(params["pred_dir"]).is_dir():
+        raise ValueError(f"pred_dir {params['pred_dir'] or '(not given)'}: not a folder of predicted meshes")
 
 
 def prediction_file(pred_dir: str | Path, shape: str, name: str) -> Path:

@@ -133,15 +133,16 @@ class JobSpec(TaskSpec):
         a reconstruction method that optimises per cloud (its jobs share nothing)."""
         if not self.uses_fitting:
             return None
-        from methods.base import METHODS
+        from tasks.rows import row_kind
 
+        row = row_kind(self.task, self.method)
         if self.task == "reconstruct":
-            if not METHODS.get(self.method).learned:
+            if not row.learned:
                 return None
             return digest({"task": self.task, "method": self.method, "budget": self.budget,
                            "budget_params": self.budget_params, "train_dirs": list(self.train_dirs)})
         return digest({"dataset": self.dataset, "dataset_options": identity_options(self.dataset_options),
-                       "shape": self.shape, "method": METHODS.get(self.method).fit_name, "budget": self.budget,
+                       "shape": self.shape, "method": row.fit_name, "budget": self.budget,
                        "budget_params": self.budget_params, "seed": self.seed})
 
     @property

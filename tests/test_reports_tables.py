@@ -355,8 +355,10 @@ def test_caption_carries_the_notes_of_the_run_methods_only():
     from reports.protocol import protocol_caption
     from runner.export import method_notes
 
-    notes = method_notes(["sals-knn", "udf-knn", "occ-knn", "no-such-method"])
+    notes = method_notes("reconstruct", ["sals-knn", "udf-knn", "occ-knn", "no-such-method"], {})
     assert set(notes) == {"udf-knn", "occ-knn"} and "controlled ablation" in notes["udf-knn"]
+    scored = method_notes("score", ["mine"], {"mine": {"pred_dir": "/data/preds", "pred_frame": "canonical"}})
+    assert scored == {"mine": "mine: meshes made outside this run from /data/preds (canonical frame), scored as given."}
     context = dict(CONTEXT, task="reconstruct", methods=["sals-knn", "udf-knn"], method_notes=notes)
     caption = protocol_caption(context)
     assert caption.startswith("Protocol: dataset: builtin (3 shapes); task: reconstruct")

@@ -1,4 +1,5 @@
-"""runner.external and ``run_benchmark.py score``: meshes made elsewhere scored as a method row.
+"""The score task (``run_benchmark.py score``, :mod:`tasks.score`, :func:`tasks.rows.predictions_row`):
+meshes made elsewhere scored as a row of their own, registered nowhere.
 
 Shapes (a ``meshes`` dataset in a non-canonical frame): a sphere of radius 3 centred at (-5, 2, 0)
 (icosphere, 5 subdivisions) and a 2 x 1 x 0.5 box centred at (10, 0, 0). The canonical scale of the
@@ -15,6 +16,7 @@ import pytest
 import trimesh
 
 from methods.base import METHODS
+from tasks.rows import row_kind
 from runner.cli import EXIT_FAILED_TASKS, EXIT_REFUSED, main
 from tasks.score import external_seconds, prediction_file, unmatched_predictions
 
@@ -48,12 +50,10 @@ def shapes(tmp_path_factory):
 
 def _score(tmp_path, data_dir, pred_dir, name="mine", *extra):
     out = tmp_path / f"run-{name}-{len(list(tmp_path.iterdir()))}"
-    try:
-        code = main(["score", "--pred-dir", str(pred_dir), "--name", name, "--dataset", "meshes", "--data-dir",
-                     str(data_dir), "--eval-points", "20000", "--out", str(out), "--quiet", "--gallery", "0",
-                     "--executor", "local", *extra])
-    finally:
-        METHODS.unregister(name)
+    code = main(["score", "--pred-dir", str(pred_dir), "--name", name, "--dataset", "meshes", "--data-dir",
+                 str(data_dir), "--eval-points", "20000", "--out", str(out), "--quiet", "--gallery", "0",
+                 "--executor", "local", *extra])
+    assert name not in METHODS  # a score run's row is registered nowhere
     return code, out
 
 
