@@ -60,8 +60,8 @@ def record_result(db: ResultsDB, run_dir: RunDirectory, result: TaskResult, firs
     if result.components:  # and its decomposition rows
         db.write_components(result.key, job, result.components)
     db.write_job({
-        "config_hash": result.key, "method": spec.method, "mode": spec.mode, "traceback": result.traceback,
-        "params": spec.params, "budget": spec.budget, "grid": spec.grid, "fit_loss": result.fit_loss,
+        "config_hash": result.key, "method": spec.method, **spec.table_fields(), "traceback": result.traceback,
+        "params": spec.params, "fit_loss": result.fit_loss,
         "attempts": result.attempts, "cache": ",".join(result.cache) or None,
         "cache_rejected": len(result.cache_rejected), "device": result.device, "host": result.host,
         "versions": result.versions, "info": result.info, "started": result.started,
@@ -150,7 +150,7 @@ def run(plan: Plan, run_dir: RunDirectory, record: dict, executor=None) -> RunOu
     skipped = total - len(todo)
     print(f"salsbench: {len(jobs)} jobs + {len(floors)} floor tasks, {skipped} already done, run dir {run_dir.path}",
           file=sys.stderr, flush=True)
-    blockwise = [t for t in todo if t.kind == "job" and t.pc_blocks]
+    blockwise = [t for t in todo if t.kind == "job" and t.block_wise]
     if blockwise:
         from runner.blocks import run_blocks
 

@@ -15,6 +15,7 @@ from typing import Any
 
 from runner.config import ConfigError, RunConfig, import_plugins
 from tasks import FloorSpec, JobSpec
+from tasks.spec import JOB_TYPES
 from tasks.rows import RowKind, row_kind
 
 
@@ -262,26 +263,17 @@ def build_tasks(plan: Plan) -> tuple[list[FloorSpec], list[JobSpec]]:
         for v in plan.variants:
             vc = v.config
             floor = FloorSpec(shape=s, seed=c.seeds[0], eval_points=vc.eval_points, **common)
-            reconstruct = ({"pc_points": vc.pc_points, "pc_noise": vc.pc_noise, "pc_corruption": vc.pc_corruption,
-                            "pc_blocks": vc.pc_blocks, "pc_scene_grid": vc.pc_scene_grid}
-                           if vc.task == "reconstruct" else {})
             floors.setdefault(floor.key, floor)
             for m in plan.methods:
                 values = v.applicable(m)
                 tag = "" if v.first or not values else variant_tag(values)
                 if vc.mode != c.mode:
                     tag = f"{vc.mode}" + (f",{tag}" if tag else "")
-                row = plan.rows[m]
-                trains = row.budget_family is not None
+                job_type = JOB_TYPES[vc.task]
+                settings = job_type.run_settings(vc, plan.rows[m], plan.train_dirs)
                 for seed in vc.seeds:
-                    extra = {**reconstruct, "train_dirs": plan.train_dirs} if reconstruct and trains else reconstruct
-                    reads = row.budget_fields
-                    job = JobSpec(shape=s, seed=seed, method=m, params=v.method_params[m], mode=vc.mode,
-                                  budget=vc.budget if trains else None,
-                                  budget_params={k: x for k, x in vc.budget_params.items() if k in reads}, grid=vc.grid,
-                                  eval_points=vc.eval_points, checkpoints=vc.checkpoints, cache_dir=cache_dir,
-                                  decompose=vc.decompose and vc.mode == "neural" and bool(row.components),
-                                  sweep=values, variant=tag, task=vc.task, **extra, **common)
+                    job = job_type(shape=s, seed=seed, method=m, params=v.method_params[m], cache_dir=cache_dir,
+                                   eval_points=vc.eval_points, sweep=values, variant=tag, **settings, **common)
                     jobs.setdefault(job.key, job)
     return list(floors.values()), list(jobs.values())
 

@@ -8,6 +8,8 @@ These modules, with what they import, are the code a task's result depends on: i
 command line, executors, progress display or reports, which never enter them.
 """
 
-from tasks.spec import FloorSpec, JobSpec, TaskSpec, digest, identity_options
+from tasks.spec import (JOB_TYPES, EncodeJob, FloorSpec, JobSpec, ReconstructJob, ScoreJob, TaskSpec, digest,
+                        identity_options)
 
-__all__ = ["FloorSpec", "JobSpec", "TaskSpec", "digest", "identity_options"]
+__all__ = ["JOB_TYPES", "EncodeJob", "FloorSpec", "JobSpec", "ReconstructJob", "ScoreJob", "TaskSpec", "digest",
+           "identity_options"]

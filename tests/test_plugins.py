@@ -56,12 +56,12 @@ def test_the_example_plugin_is_a_row_of_a_run(tmp_path):
 
 def test_a_plugin_files_code_enters_the_job_key(tmp_path):
     from tasks.cache import code_digest, task_code_digest
-    from tasks import JobSpec
+    from tasks.spec import ReconstructJob
 
     copy = tmp_path / "my_hull.py"
     copy.write_text(EXAMPLE.read_text().replace('"convex-hull"', '"my-hull"'))
-    spec = JobSpec(dataset="builtin", dataset_options={}, shape="s", eval_points=None, metric_preset="default", seed=0,
-                   method="my-hull", task="reconstruct")
+    spec = ReconstructJob(dataset="builtin", dataset_options={}, shape="s", eval_points=None, metric_preset="default",
+                          seed=0, method="my-hull")
     try:
         plugin_from_file(str(copy))
         before = task_code_digest(spec)

@@ -16,7 +16,7 @@ import pytest
 from tasks.block_store import CLOUD_FILE, BlockResult, BlockTask, Scene, write_block, write_scene
 from runner.blocks import crop_cloud
 from runner.config import ConfigError, RunConfig
-from tasks import JobSpec
+from tasks.spec import ReconstructJob
 from methods.pointcloud.blocks import Block
 
 REPO = Path(__file__).resolve().parents[1]
@@ -40,9 +40,9 @@ def test_block_settings_are_checked():
         RunConfig(task="reconstruct", pc_blocks=8, pc_scene_grid=1)
 
 
-def _job(**kw) -> JobSpec:
-    return JobSpec(dataset="rooms", dataset_options={}, shape="a", eval_points=100, metric_preset="default", seed=0,
-                   method="poisson", task="reconstruct", pc_points=100, pc_noise=0.0, **kw)
+def _job(**kw) -> ReconstructJob:
+    return ReconstructJob(dataset="rooms", dataset_options={}, shape="a", eval_points=100, metric_preset="default",
+                          seed=0, method="poisson", pc_points=100, pc_noise=0.0, **kw)
 
 
 def test_a_block_wise_job_has_its_own_key():

@@ -146,12 +146,13 @@ def test_two_runs_sharing_one_cache_fit_each_network_once_and_equal_a_serial_run
 
 
 def _specs():
-    from tasks import FloorSpec, JobSpec
+    from tasks import FloorSpec
+    from tasks.spec import EncodeJob, ReconstructJob, ScoreJob
 
     common = dict(dataset="builtin", dataset_options={}, shape="s", eval_points=None, metric_preset="default", seed=0)
-    return [FloorSpec(**common), JobSpec(**common, method="sals"), JobSpec(**common, method="udf-ndc"),
-            JobSpec(**common, method="poisson", task="reconstruct"),
-            JobSpec(**common, method="sals-knn", task="reconstruct", budget="cpu")]
+    return [FloorSpec(**common), EncodeJob(**common, method="sals"), EncodeJob(**common, method="udf-ndc"),
+            ReconstructJob(**common, method="poisson"), ReconstructJob(**common, method="sals-knn", budget="cpu"),
+            ScoreJob(**common, method="mine", params={"pred_dir": "/p", "pred_frame": "original"})]
 
 
 @pytest.mark.parametrize("spec", _specs(), ids=lambda s: s.label)
@@ -165,9 +166,9 @@ def test_a_tasks_code_digest_covers_what_computes_it_and_nothing_of_the_run_laye
     assert {spec.body, "tasks.load", "foundation.metrics.evaluate"} <= modules
     assert not {m for m in modules if m.split(".")[0] in ("runner", "reports")}, sorted(modules)
     if spec.kind == "job":
-        from methods.base import METHODS
+        from tasks.rows import row_kind
 
-        assert METHODS.get(spec.method).__module__ in modules
+        assert row_kind(spec.task, spec.method).module in modules
 
 
 @pytest.mark.slow
