@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from foundation.params import ParamError
-from runner.config import ConfigError, RunConfig, import_plugins
+from runner.config import ConfigError, RunConfig, flag_of, import_plugins
 from runner.parsing import EXIT_FAILED_TASKS, EXIT_OK, EXIT_REFUSED, OneLineParser
 from runner.plan import resolve
 from runner.records import SchemaMismatch
@@ -122,17 +122,6 @@ def build_parser() -> argparse.ArgumentParser:
     setting("gallery", metavar="N")
     setting("recompute_stale", action="store_const", const=True)
     return p
-
-
-#: RunConfig fields whose option is not ``--`` + the field name with dashes.
-_FLAGS = {"list_file": "--list", "seeds": "--seed", "plugins": "--plugin", "train_dirs": "--train-dir",
-          "method_params": "--method-param", "budget_params": "--budget-param",
-          "dataset_params": "--dataset-option"}
-
-
-def flag_of(field: str) -> str:
-    """The command-line option of a RunConfig field."""
-    return _FLAGS.get(field, "--" + field.replace("_", "-"))
 
 
 def _comma_list(text: str) -> tuple[str, ...]:

@@ -14,6 +14,11 @@ Python. Every field has a *role*:
 * ``execution``: how this invocation runs (executor, workers, threads, caches, ...). Recorded,
   never part of a result's identity.
 
+A setting that only some tasks read names them (its ``tasks`` metadata: the input cloud's settings
+and ``--train-dir`` the reconstruct task, ``--mode``, ``--checkpoints``, ``--decompose`` and
+``--no-ceiling`` the encode task, budget overrides and sweeps both); a run of another task refuses
+it, given away from its default, in one line naming the setting and its tasks.
+
 :func:`runner.plan.resolve` turns a config into a :class:`runner.plan.Plan` (imports
 plugins, checks method and parameter names against the registry, builds the dataset and lists its
 shapes). Every check raises :class:`ConfigError` with one line, before any work starts.
@@ -72,10 +77,22 @@ def machine_memory_bytes() -> int | None:
 ENTRY_POINT_GROUP = "salsbench.plugins"
 
 
-def _setting(role: str, default, help: str, sweep: str | None = None, **param):
-    """A RunConfig field: its :class:`Param` (type, bounds, the ``--help`` text), its role and, for
-    a setting a sweep may vary, the sweep key's name."""
-    return setting(Param(default, help, **param), role=role, sweep=sweep)
+#: RunConfig fields whose option is not ``--`` + the field name with dashes.
+_FLAGS = {"list_file": "--list", "seeds": "--seed", "plugins": "--plugin", "train_dirs": "--train-dir",
+          "method_params": "--method-param", "budget_params": "--budget-param",
+          "dataset_params": "--dataset-option", "ceiling": "--no-ceiling"}
+
+
+def flag_of(field: str) -> str:
+    """The command-line option of a RunConfig field."""
+    return _FLAGS.get(field, "--" + field.replace("_", "-"))
+
+
+def _setting(role: str, default, help: str, sweep: str | None = None, tasks: tuple[str, ...] | None = None, **param):
+    """A RunConfig field: its :class:`Param` (type, bounds, the ``--help`` text), its role, for a
+    setting a sweep may vary the sweep key's name, and for a setting of some tasks only, those
+    tasks (another task's run refuses it away from its default: :meth:`RunConfig._check`)."""
+    return setting(Param(default, help, **param), role=role, sweep=sweep, tasks=tasks)
 
 
 @dataclass(frozen=True)
@@ -95,7 +112,7 @@ class RunConfig:
     limit: int | None = _setting("identity", None, "use only the first N shapes of the dataset", kind=int, ge=1)
     mode: str = _setting(
         "identity", "neural", "neural (default): fit a network per shape and method, extract from it; oracle: "
-        "extract from the exact field (no fitting; isolates extraction error)", choices=MODES)
+        "extract from the exact field (no fitting; isolates extraction error)", choices=MODES, tasks=("encode",))
     budget: str | None = _setting(
         "identity", "cpu", "fitting budget, the same for every method: cpu (default; feature-grid backbone, 3,000 "
         "steps: a fit in under a minute on one CPU core), quick (a small MLP, the CPU reference without the grid), "
@@ -119,52 +136,55 @@ class RunConfig:
         "identity", (), "neural mode: also score the network at these increasing fractions of the fit budget, "
         "e.g. 0.25,0.5,1 (anytime curves: one row per checkpoint in results.db/checkpoints.csv and a plot of each "
         "metric against fit seconds in the report); off by default; jobs with checkpoints always fit",
-        item=float, gt=0, le=1)
+        item=float, gt=0, le=1, tasks=("encode",))
     pc_points: int = _setting(
         "identity", DEFAULT_PC_POINTS, f"reconstruct task: points of the input cloud (default {DEFAULT_PC_POINTS:,}, "
-        f"the paper's; >= {MIN_PC_POINTS})", sweep="pc_points", ge=MIN_PC_POINTS)
+        f"the paper's; >= {MIN_PC_POINTS})", sweep="pc_points", ge=MIN_PC_POINTS, tasks=("reconstruct",))
     pc_noise: float = _setting(
         "identity", 0.0, "reconstruct task: Gaussian noise sigma added to the input points, canonical units "
-        "(default 0)", sweep="pc_noise", ge=0, lt=1)
+        "(default 0)", sweep="pc_noise", ge=0, lt=1, tasks=("reconstruct",))
     pc_corruption: str = _setting(
         "identity", "uniform", "reconstruct task: how the input cloud is made: uniform (default: area-uniform "
         "samples, the paper's), scan (a clean virtual range scan: 10 sensors, per-point sensor positions), or a "
         "scan corrupted at level 1-3: noise-L, outliers-L, missing-L, density-L, misalign-L (docs/PROTOCOL.md, "
-        "'Input clouds')", sweep="pc_corruption", choices=CORRUPTIONS)
+        "'Input clouds')", sweep="pc_corruption", choices=CORRUPTIONS, tasks=("reconstruct",))
     pc_blocks: int = _setting(
         "identity", 0, "reconstruct task: reconstruct block by block, blocks of B grid points per axis, one task "
         "per block on the executor, finished blocks kept across runs (0: the whole grid at once, default). "
         "sals-knn by edges (its mesh equals the whole grid's); any other method by the window of --grid points "
-        "centred on each block (docs/PROTOCOL.md, 'Block-wise reconstruction')", sweep="pc_blocks", ge=0)
+        "centred on each block (docs/PROTOCOL.md, 'Block-wise reconstruction')", sweep="pc_blocks", ge=0,
+        tasks=("reconstruct",))
     pc_scene_grid: int = _setting(
         "identity", 0, "reconstruct task with --pc-blocks: points per axis of the scene's grid over the canonical "
         "cube. 0 (default): POCO's rule for a learned method (the grid on which the cloud has its training "
         "clouds' density: the network sees the cloud scaled by (N-1)/(grid-1)), --grid for any other method",
-        sweep="pc_scene_grid", ge=0)
+        sweep="pc_scene_grid", ge=0, tasks=("reconstruct",))
     train_dirs: tuple[str, ...] | None = _setting(
         "identity", None, "reconstruct task: a folder of extra training meshes for the learned methods (repeatable; "
         "default: ../shared/data/thingi10k where it exists); the built-in training parts are always included",
-        kind=tuple, item=str)
+        kind=tuple, item=str, tasks=("reconstruct",))
     dataset_params: Mapping[str, Any] = _setting(
         "identity", {}, "an option of the dataset, e.g. length=100 for street or count=20 for rooms (repeatable; "
         "the dataset checks the name and the value)", kind=dict)
     budget_params: Mapping[str, Any] = _setting(
         "identity", {}, "override a value of the budget, e.g. num_samples=500000 or steps=2000 (repeatable; "
-        "typed and range-checked; recorded in config.json and every table caption)", kind=dict)
+        "typed and range-checked; recorded in config.json and every table caption)", kind=dict,
+        tasks=("encode", "reconstruct"))
     sweep: Mapping[str, tuple] = _setting(
         "identity", {}, "run every value of a setting in one run directory (repeatable: the cross product). KEY: "
         "grid, eval_points, budget, seed, budget.NAME (e.g. budget.num_samples) or METHOD.NAME (e.g. "
         "sals.o_threshold); values typed like --method-param. Each row records its values in columns sweep.KEY; "
         "jobs that differ only in extraction settings share one fit; a neural sweep also runs its oracle ceiling "
-        "(see --no-ceiling)", kind=dict, item=tuple)
+        "(see --no-ceiling)", kind=dict, item=tuple, tasks=("encode", "reconstruct"))
     ceiling: bool = _setting(
-        "identity", True, "a neural sweep also runs the same sweep on the exact field (its oracle ceiling)")
+        "identity", True, "a neural sweep also runs the same sweep on the exact field (its oracle ceiling)",
+        tasks=("encode",))
     decompose: bool = _setting(
         "identity", False, "neural mode: also extract each fitted field with parts of it taken from the exact field "
         "(SALS: intersection flags, hit positions s, normals; UDF: values, gradients; SDF and BOF: sign, "
         "magnitude), each set scored as a row of its own (results.db table components, components.csv, the "
         "decomposition tables of summary.md and report.html), and record the fitted components' errors "
-        "(false-hit and missed edges, s and normal errors, ...) in the job's row")
+        "(false-hit and missed edges, s and normal errors, ...) in the job's row", tasks=("encode",))
     methods: tuple[str, ...] = _setting("scope", (), "methods to run (default: every registered method)", item=str)
     seeds: tuple[int, ...] = _setting(
         "scope", (0,), "seeds in [0, 2^63) (default 0); each seed is a separate job per shape and method "
@@ -266,11 +286,7 @@ class RunConfig:
         if self.pc_points > self.max_points:
             raise ConfigError(f"--pc-points {self.pc_points} is over the limit of {self.max_points} points a job "
                               f"may hold (--max-points)")
-        if self.task != "reconstruct" and (self.pc_points != DEFAULT_PC_POINTS or self.pc_noise != 0
-                                           or self.pc_corruption != "uniform"):
-            raise ConfigError("--pc-points, --pc-noise and --pc-corruption apply to --task reconstruct")
-        if (self.pc_blocks or self.pc_scene_grid) and self.task != "reconstruct":
-            raise ConfigError("--pc-blocks and --pc-scene-grid apply to --task reconstruct")
+        self._check_task_settings()
         if self.pc_scene_grid and not self.pc_blocks:
             raise ConfigError("--pc-scene-grid is the grid of a block-wise reconstruction: give --pc-blocks too")
         if self.pc_scene_grid == 1:
@@ -278,13 +294,8 @@ class RunConfig:
         if self.pc_noise != 0 and (self.pc_corruption != "uniform" or "pc_corruption" in self.sweep):
             raise ConfigError("--pc-noise adds Gaussian noise to uniform samples; for a scan use --pc-corruption "
                               "noise-1, noise-2 or noise-3 (noise along the sensor's rays)")
-        if self.task != "encode" and (self.mode != "neural" or self.checkpoints):
-            raise ConfigError("--mode oracle and --checkpoints apply to --task encode")
-        if self.task == "score" and (self.budget_params or self.sweep or self.train_dirs):
-            raise ConfigError("--task score reads meshes made elsewhere: --budget-param, --sweep and --train-dir do "
-                              "not apply")
-        if self.decompose and (self.mode != "neural" or self.task != "encode"):
-            raise ConfigError("--decompose needs --mode neural and --task encode (it splits a fitted field's error)")
+        if self.decompose and self.mode != "neural":
+            raise ConfigError("--decompose needs --mode neural (it splits a fitted field's error)")
         if self.budget_params and self.mode != "neural":
             raise ConfigError("--budget-param needs --mode neural (oracle mode fits nothing)")
         swept = tuple(self.sweep.get("seed", ()))
@@ -295,6 +306,16 @@ class RunConfig:
             raise ConfigError("--address only applies to --executor ray")
         if self.workers is not None and self.executor == "local":
             raise ConfigError("--workers applies to --executor auto, process or ray; the local executor runs one job at a time")
+
+    def _check_task_settings(self) -> None:
+        """ConfigError (one line) naming the settings of other tasks that this run gives away from
+        their defaults (each field's ``tasks`` metadata)."""
+        foreign = [f for f in dataclasses.fields(self) if f.metadata.get("tasks") and self.task not in f.metadata["tasks"]
+                   and getattr(self, f.name) != f.metadata["param"].default]
+        if foreign:
+            tasks = " or ".join(f"--task {t}" for t in foreign[0].metadata["tasks"])
+            flags = " and ".join(flag_of(f.name) + ("" if f.name != "mode" else f" {self.mode}") for f in foreign)
+            raise ConfigError(f"{flags} appl{'ies' if len(foreign) == 1 else 'y'} to {tasks}, not to --task {self.task}")
 
     @classmethod
     def params(cls) -> dict[str, Param]:

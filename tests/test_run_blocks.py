@@ -32,7 +32,7 @@ def _run(args, out: Path, **kw):
 
 
 def test_block_settings_are_checked():
-    with pytest.raises(ConfigError, match="apply to --task reconstruct"):
+    with pytest.raises(ConfigError, match="--pc-blocks applies to --task reconstruct, not to --task encode"):
         RunConfig(pc_blocks=8)
     with pytest.raises(ConfigError, match="give --pc-blocks too"):
         RunConfig(task="reconstruct", pc_scene_grid=256)

@@ -71,12 +71,15 @@ def test_poisson_runs_as_a_reconstruct_task_end_to_end(tmp_path):
 @pytest.mark.parametrize("args, message", [
     (["--task", "reconstruct", "--methods", "sals"], "method 'sals' belongs to the encode task"),
     (["--methods", "poisson"], "method 'poisson' belongs to the reconstruct task"),
-    (["--pc-points", "1000"], "apply to --task reconstruct"),
-    (["--pc-corruption", "scan"], "apply to --task reconstruct"),
+    (["--pc-points", "1000"], "--pc-points applies to --task reconstruct, not to --task encode"),
+    (["--pc-corruption", "scan"], "--pc-corruption applies to --task reconstruct"),
+    (["--train-dir", "/x"], "--train-dir applies to --task reconstruct"),
+    (["--task", "reconstruct", "--decompose"], "--decompose applies to --task encode"),
     (["--task", "reconstruct", "--pc-corruption", "noise-4"], "--pc-corruption='noise-4'"),
     (["--task", "reconstruct", "--pc-corruption", "scan", "--pc-noise", "0.01"], "for a scan use --pc-corruption"),
     (["--task", "reconstruct", "--pc-points", "10"], "--pc-points='10': expected int in [100, inf)"),
-    (["--task", "reconstruct", "--mode", "oracle"], "apply to --task encode"),
+    (["--task", "reconstruct", "--mode", "oracle"], "--mode oracle applies to --task encode, not to --task reconstruct"),
+    (["--task", "score", "--methods", "m", "--sweep", "grid=32,64"], "--sweep applies to --task encode or --task reconstruct"),
     (["--task", "reconstruct", "--methods", "udf-knn", "--train-dir", "/nonexistent"], "--train-dir /nonexistent"),
     (["--task", "reconstruct", "--methods", "udf-knn", "--no-cache"], "keep their trained networks in the cache"),
 ])
