@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+import trimesh
 from scipy.spatial.distance import cdist
 
 from foundation import metrics as M
@@ -100,6 +101,12 @@ def test_dense_samples_of_few_normals_are_decided_exactly():
     points, normals = sample_surface(octahedron_v * 1e-3, octahedron_f, 3000, rng)
     assert len(np.unique(np.abs(normals @ normals.T).round(9))) == 2  # 1/3 and 1
     assert not M.sharp_edge_points(points, normals, 0.2, max_pairs=10).any()
+    coarse = trimesh.creation.icosphere(subdivisions=2)  # 320 faces, normals all distinct: groups in general
+    points, normals = sample_surface(np.asarray(coarse.vertices), np.asarray(coarse.faces), 4000, rng)
+    for radius in (0.05, 0.3):
+        got = M.sharp_edge_points(points, normals, radius, max_pairs=10)
+        assert np.array_equal(got, brute_force_edge_points(points, normals, radius))
+        assert np.array_equal(got, M.sharp_edge_points(points, normals, radius))
     points = rng.random((500, 3)) * 1e-3
     normals = np.zeros((500, 3))
     normals[:250] = [0.0, 0.0, 1.0]
@@ -120,14 +127,16 @@ def test_edge_points_of_a_tiny_prediction_give_its_ef1():
 
 
 def test_too_dense_edge_search_of_many_normals_is_refused_not_crashed():
-    """A sphere 1000x smaller than the GT: all its samples lie within one edge radius and its normals
-    take thousands of values, so the exact search would test n^2 pairs. It is refused with a one-line
-    reason; ECD/EF1 are NaN."""
+    """A smooth sphere 1000x smaller than the GT: all its samples lie within one edge radius and its
+    normals take as many values as there are samples, so the exact search would test n^2 pairs. It is
+    refused with a one-line reason; ECD/EF1 are NaN."""
     v, f = box(2.0)
     sv, sf = sphere()
     points, normals = sample_surface(sv * 1e-3, sf, 20_000, np.random.default_rng(0))
+    normals = points / np.linalg.norm(points, axis=1, keepdims=True)  # a smooth surface's normals
     with pytest.raises(M.EdgeSearchTooDense, match="too dense"):
         M.sharp_edge_points(points, normals, 0.01, max_pairs=1e6)
+    assert len(sf) > M.MAX_NORMAL_GROUPS  # as a mesh: more face orientations than are decided by groups
     r = M.evaluate(v, f, sv * 1e-3, sf, n_points=100_000)  # bound ~1e10 > the 1e9 default
     assert r["edge_search_skipped"].startswith("prediction edge-point search too dense")
     assert r["pred_edge_points"] == -1 and math.isnan(r["ecd"]) and math.isnan(r["ef1"]) and np.isfinite(r["cd"])

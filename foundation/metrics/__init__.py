@@ -51,7 +51,7 @@ in, one result row out), ``__main__`` (the command line: ``python -m foundation.
 
 from foundation.metrics.distances import (distance_distribution, edge_metrics, nearest_distances, spatial_order,
                                          surface_metrics)
-from foundation.metrics.edges import MAX_EDGE_PAIRS, EdgeSearchTooDense, sharp_edge_points
+from foundation.metrics.edges import MAX_EDGE_PAIRS, MAX_NORMAL_GROUPS, EdgeSearchTooDense, sharp_edge_points
 from foundation.metrics.evaluate import evaluate, evaluate_without_gt, floor
 from foundation.metrics.iou import IOU_POINTS, volumetric_iou
 from foundation.metrics.presets import PRESETS, HeadlineMetric, MetricPreset, f1_column
@@ -68,6 +68,7 @@ __all__ = [
     "floor",
     "sharp_edge_points",
     "EdgeSearchTooDense",
+    "MAX_NORMAL_GROUPS",
     "MAX_EDGE_PAIRS",
     "nearest_distances",
     "spatial_order",

@@ -25,8 +25,10 @@ _DOT_CHUNK = 4_000_000
 MAX_EDGE_PAIRS = 1_000_000_000
 #: Most distinct normals for which a search past ``max_pairs`` is still decided, one nearest-neighbour
 #: query per sample (:func:`_edge_points_by_normal_groups`): a mesh's samples carry their face's
-#: normal, so a prediction of up to this many face orientations.
-MAX_NORMAL_GROUPS = 64
+#: normal, so a prediction of up to this many face orientations (a degenerate mesh of a few thousand
+#: faces far smaller than its GT: seconds at 1M samples).
+MAX_NORMAL_GROUPS = 4096
+_GROUP_BLOCK = 256
 
 
 class EdgeSearchTooDense(ValueError):
@@ -123,21 +125,30 @@ def _edge_points_by_normal_groups(points: np.ndarray, group_normals: np.ndarray,
 
     ``group_normals[group[i]]`` is the normal of sample ``i``. A sample of group ``a`` is an edge point
     exactly when its nearest other sample among the groups ``b`` with ``|n_a . n_b| < dot_threshold``
-    lies within ``radius`` (inclusive): one KD-tree per group over those groups' samples and one
-    nearest-neighbour query per sample (its own index excluded, which only matters for a group
-    perpendicular to itself, i.e. zero normals), whatever the number of pairs within ``radius``.
+    whose bounding boxes come within ``radius`` of a's lies within ``radius`` (inclusive): per group
+    one KD-tree over those groups' samples and one nearest-neighbour query per sample (its own index
+    excluded, which only matters for a group perpendicular to itself, i.e. zero normals), whatever
+    the number of pairs within ``radius``.
     """
     flags = np.zeros(len(points), dtype=bool)
-    perpendicular = np.abs(group_normals @ group_normals.T) < dot_threshold
+    k = len(group_normals)
     order = np.argsort(group, kind="stable")
-    members = np.split(order, np.cumsum(np.bincount(group, minlength=len(group_normals)))[:-1])
+    members = np.split(order, np.cumsum(np.bincount(group, minlength=k))[:-1])
+    lo = np.minimum.reduceat(points[order], np.r_[0, np.cumsum([len(m) for m in members[:-1]])], axis=0)
+    hi = np.maximum.reduceat(points[order], np.r_[0, np.cumsum([len(m) for m in members[:-1]])], axis=0)
     reach = np.nextafter(float(radius), np.inf)
-    for a in np.flatnonzero(perpendicular.any(axis=1)):  # a loop over at most MAX_NORMAL_GROUPS groups
-        others = np.concatenate([members[b] for b in np.flatnonzero(perpendicular[a])])
-        distance, nearest = cKDTree(points[others]).query(points[members[a]], k=2, distance_upper_bound=reach)
-        itself = others[np.minimum(nearest[:, 0], len(others) - 1)] == members[a]
-        closest = np.where(itself, distance[:, 1], distance[:, 0])
-        flags[members[a][closest <= radius]] = True
+    for start in range(0, k, _GROUP_BLOCK):  # rows of the group-pair matrices, a block at a time
+        rows = slice(start, min(start + _GROUP_BLOCK, k))
+        perpendicular = np.abs(group_normals[rows] @ group_normals.T) < dot_threshold
+        gap = np.maximum(0.0, np.maximum(lo[rows, None, :] - hi[None], lo[None] - hi[rows, None, :]))
+        candidates = perpendicular & (np.linalg.norm(gap, axis=2) <= reach)
+        for row in np.flatnonzero(candidates.any(axis=1)):  # a loop over groups, at most MAX_NORMAL_GROUPS
+            a = start + row
+            others = np.concatenate([members[b] for b in np.flatnonzero(candidates[row])])
+            distance, nearest = cKDTree(points[others]).query(points[members[a]], k=2, distance_upper_bound=reach)
+            itself = others[np.minimum(nearest[:, 0], len(others) - 1)] == members[a]
+            closest = np.where(itself, distance[:, 1], distance[:, 0])
+            flags[members[a][closest <= radius]] = True
     return flags
 
 
