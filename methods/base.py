@@ -137,10 +137,7 @@ class Method:
         """The record named ``name`` of the method's budget family with the ``overrides`` it reads
         applied (typed, range-checked; the others are not this method's and are left out); None for
         a method without a budget family. An unknown name raises with the family's known names."""
-        if cls.budget_family is None:
-            return None
-        mine = {k: v for k, v in (overrides or {}).items() if k in cls.budget_fields()}
-        return budget_family(cls.budget_family).get(name, mine)
+        return family_budget(cls.budget_family, name, overrides)
 
     @classmethod
     def unavailable(cls) -> str | None:
@@ -438,6 +435,15 @@ def budget_family(name: str) -> BudgetFamily:
     by the module that defines its record type)."""
     METHODS.names()
     return BUDGET_FAMILIES.get(name)
+
+
+def family_budget(family: str | None, name: str, overrides: Mapping[str, Any] | None = None):
+    """The record named ``name`` of budget family ``family`` with the ``overrides`` among its fields
+    applied (typed, range-checked; the others are left out); None for no family."""
+    if family is None:
+        return None
+    fields = budget_family(family).params
+    return budget_family(family).get(name, {k: v for k, v in (overrides or {}).items() if k in fields})
 
 
 def available_methods(task: str | None = "encode") -> list[str]:

@@ -100,10 +100,12 @@ def method_notes(task: str, names, params: dict) -> dict[str, str]:
     notes = {}
     for name in names:
         try:
-            notes[name] = row_kind(task, name, params.get(name)).note
+            note = row_kind(task, name, params.get(name)).note
         except ValueError:
             continue
-    return {n: note for n, note in notes.items() if note}
+        if note:
+            notes[name] = note
+    return notes
 
 
 def export(run_dir: str | Path, db=None, record: dict[str, Any] | None = None,

@@ -38,8 +38,6 @@ class Variant:
 
     def applicable(self, method: str) -> dict[str, Any]:
         """The values of the keys a job of ``method`` in this variant's mode depends on."""
-        if not self.values:
-            return {}
         return {k: v for k, v in self.values.items() if self.keys[k].applies_to(method, self.config.mode)}
 
 
@@ -187,7 +185,7 @@ def _budgets(config: RunConfig, rows: dict[str, RowKind]) -> dict[str, Any]:
     """The budget record named ``config.budget`` of each budget family whose methods fit or train in
     this run, each with the overrides its family reads: ``{family: record}`` (empty in oracle mode
     and when no method trains). A family without that name refuses it, naming its budgets."""
-    from methods.base import budget_family
+    from methods.base import family_budget
     from runner.sweep import readable_budget_parameters
 
     training = [m for m, row in rows.items() if row.budget_family is not None] if config.budget is not None else []
@@ -196,10 +194,9 @@ def _budgets(config: RunConfig, rows: dict[str, RowKind]) -> dict[str, Any]:
     readable_budget_parameters(training, config.budget_params)
     budgets: dict[str, Any] = {}
     for m in training:
-        row = rows[m]
-        if row.budget_family not in budgets:
-            mine = {k: v for k, v in config.budget_params.items() if k in row.budget_fields}
-            budgets[row.budget_family] = budget_family(row.budget_family).get(config.budget, mine)
+        family = rows[m].budget_family
+        if family not in budgets:
+            budgets[family] = family_budget(family, config.budget, config.budget_params)
     return budgets
 
 
