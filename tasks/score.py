@@ -61,7 +61,8 @@ def run(ctx: TaskContext) -> None:
 def check_predictions(params: dict) -> None:
     """ValueError (one line) unless ``params['pred_dir']`` is a folder."""
     if not params["pred_dir"] or not Path(params["pred_dir"]).is_dir():
-        raise ValueError(f"pred_dir {params['pred_dir'] or '(not given)'}: not a folder of predicted meshes")
+        raise ValueError(f"pred_dir {params['pred_dir'] or '(not given)'}: not a folder of predicted meshes "
+                         f"(run_benchmark.py score --pred-dir DIR --name NAME)")
 
 
 def prediction_file(pred_dir: str | Path, shape: str, name: str) -> Path:
