@@ -3,12 +3,17 @@
 
     python scripts/export_results.py RUN_DIR [RUN_DIR ...] --commit SHA --out docs/results/NAME.csv
     python scripts/export_results.py RUN_DIR --components --commit SHA --out docs/results/NAME.csv
+    python scripts/export_results.py RUN_DIR --commit SHA --out docs/results/NAME.csv --append
 
 Columns: ``shape, method, seed, mode, budget, input, cd, nc, f1_005, f1_01, ecd, ef1, n_faces,
 status, error, seen_in_training, commit``. ``input``: ``mesh`` for the encode task (the GT mesh's
 exact fields), else the reconstruct task's input cloud (``uniform``, ``scan``, ``noise-2``, ...).
 ``commit``: the commit whose code computed the rows (the frozen worktree a long run ran from).
 Rows are sorted by method, shape and seed; numbers keep 9 significant digits.
+
+``--append`` adds the runs' jobs to an existing CSV, whose rows keep their own commits (new rows of the
+same table computed at a later commit); a job already in it (the same shape, method, seed, mode and
+input) is refused, naming it.
 
 ``--components`` exports a ``--decompose`` run's extractions instead (its components.csv): one row
 per job and set of exact components, columns :data:`COMPONENT_COLUMNS` (``exact``: the components
@@ -59,6 +64,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, required=True, help="the CSV to write")
     parser.add_argument("--components", action="store_true",
                         help="export the runs' --decompose extractions (components.csv) instead of their jobs")
+    parser.add_argument("--append", action="store_true",
+                        help="add the runs' jobs to the existing --out, refusing a job it already has")
     args = parser.parse_args(argv)
     table_file, rows = ("components.csv", component_rows) if args.components else ("results.csv", job_rows)
     frames = []
@@ -69,7 +76,20 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         frames.append(rows(run, args.commit))
     keys = ["method", "shape", "seed"] + (["exact"] if args.components else [])
-    table = pd.concat(frames, ignore_index=True).sort_values(keys, kind="stable")
+    if args.append:
+        if not args.out.is_file():
+            print(f"export_results: --append: {args.out} does not exist", file=sys.stderr)
+            return 2
+        frames.insert(0, pd.read_csv(args.out))
+    table = pd.concat(frames, ignore_index=True)
+    job = keys + ([] if args.components else ["mode", "input"])
+    repeated = table[table.duplicated(job, keep=False)]
+    if len(repeated):
+        first = repeated.iloc[0]
+        print(f"export_results: {len(repeated) // 2 or 1} job(s) twice, e.g. "
+              + ", ".join(f"{k}={first[k]}" for k in job), file=sys.stderr)
+        return 2
+    table = table.sort_values(keys, kind="stable")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     table.to_csv(args.out, index=False, float_format="%.9g")
     if args.components:

@@ -52,3 +52,19 @@ def test_components_export_one_row_per_job_and_exact_set(tmp_path):
     assert list(table["exact"]) == ["flags", "normals"] and list(table["ef1"]) == [0.8, 0.9]
     (run / "components.csv").unlink()
     assert script.main([str(run), "--components", "--commit", "x", "--out", str(out)]) == 2
+
+
+def test_append_keeps_each_rows_commit_and_refuses_a_job_twice(tmp_path):
+    script = load_script("export_results")
+    first = _run(tmp_path / "first", "encode", "uniform", [
+        {"shape": "a", "method": "sdf", "seed": 0, "mode": "neural", "status": "ok", "cd": 0.002}])
+    later = _run(tmp_path / "later", "encode", "uniform", [
+        {"shape": "a", "method": "nglod", "seed": 0, "mode": "neural", "status": "ok", "cd": 0.003}])
+    out = tmp_path / "out.csv"
+    assert script.main([str(later), "--commit", "b", "--out", str(out), "--append"]) == 2  # nothing to append to
+    assert script.main([str(first), "--commit", "a", "--out", str(out)]) == 0
+    assert script.main([str(later), "--commit", "b", "--out", str(out), "--append"]) == 0
+    table = pd.read_csv(out)
+    assert list(zip(table["method"], table["commit"])) == [("nglod", "b"), ("sdf", "a")]
+    assert script.main([str(later), "--commit", "c", "--out", str(out), "--append"]) == 2
+    assert len(pd.read_csv(out)) == 2
