@@ -86,6 +86,7 @@ def build_parser() -> argparse.ArgumentParser:
     setting("list_file", metavar="FILE")
     setting("dataset_params", action="append", metavar="NAME=VALUE")
     setting("limit", metavar="N")
+    setting("shapes", nargs="+", metavar="NAME")
     setting("mode", choices=settings["mode"].choices)
     setting("budget", metavar="NAME")
     setting("grid", metavar="N")

@@ -6,7 +6,7 @@ A ``RunConfig`` is frozen and checks its own values when built (:meth:`RunConfig
 from the command line, from a file (``--config`` TOML or JSON, or a run's ``config.json``) or from
 Python. Every field has a *role*:
 
-* ``identity``: defines what a job computes (task, dataset, data_dir, list_file, limit, mode, budget,
+* ``identity``: defines what a job computes (task, dataset, data_dir, list_file, limit, shapes, mode, budget,
   grid, metric_preset, eval_points, method_params). A run directory holds one protocol: a second
   command into it with a different identity is refused (:meth:`RunConfig.identity_diff`).
 * ``scope``: which jobs exist (methods, seeds). A later command into the same run directory may add
@@ -110,6 +110,9 @@ class RunConfig:
     list_file: str | None = _setting(
         "identity", None, "text file of shape names, one per line (e.g. the SALS ABC test lists)", kind=str)
     limit: int | None = _setting("identity", None, "use only the first N shapes of the dataset", kind=int, ge=1)
+    shapes: tuple[str, ...] = _setting(
+        "identity", (), "use only these shapes of the dataset, by name, in the dataset's order (e.g. the shape of "
+        "a row of a per-job CSV, to re-run it); a name the dataset lacks is refused", item=str)
     mode: str = _setting(
         "identity", "neural", "neural (default): fit a network per shape and method, extract from it; oracle: "
         "extract from the exact field (no fitting; isolates extraction error)", choices=MODES, tasks=("encode",))

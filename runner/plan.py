@@ -90,6 +90,18 @@ def _existing(flag: str, value: str, kind: str) -> str:
     return str(path.resolve())
 
 
+def _named_shapes(shapes: list[str], names: tuple[str, ...], dataset: str) -> list[str]:
+    """The shapes of ``shapes`` named in ``names`` (all of them when ``names`` is empty), in the
+    dataset's order; ConfigError naming the first name the dataset lacks."""
+    if not names:
+        return shapes
+    unknown = [n for n in names if n not in set(shapes)]
+    if unknown:
+        raise ConfigError(f"--shapes {unknown[0]}: not a shape of dataset '{dataset}' with these options "
+                          f"({len(shapes)} shapes, e.g. {', '.join(shapes[:3])})")
+    return [s for s in shapes if s in set(names)]
+
+
 def resolve(config: RunConfig) -> Plan:
     """Look up every name of ``config`` and list the shapes (no mesh is read); ConfigError on a problem."""
     for name in config.plugins:
@@ -137,9 +149,10 @@ def resolve(config: RunConfig) -> Plan:
     from tasks.load import load_dataset
 
     try:
-        shapes = list(load_dataset(config.dataset, options).names())[: config.limit]
+        shapes = list(load_dataset(config.dataset, options).names())
     except (ValueError, OSError) as exc:  # DatasetError is a ValueError
         raise ConfigError(str(exc).splitlines()[0] if str(exc) else type(exc).__name__) from None
+    shapes = _named_shapes(shapes, config.shapes, config.dataset)[: config.limit]
     if not shapes:
         raise ConfigError(f"dataset '{config.dataset}' has no shapes with these options ({options or 'none'})")
     if load_dataset(config.dataset, options).point_clouds:

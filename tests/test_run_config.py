@@ -77,6 +77,17 @@ def test_resolve_types_method_params_and_lists_shapes():
         resolve(RunConfig(budget="huge"))
 
 
+def test_shapes_pick_rows_by_name_in_the_datasets_order_and_an_unknown_name_is_refused():
+    every = resolve(RunConfig(mode="oracle", methods=("sals",))).shapes
+    picked = resolve(RunConfig(mode="oracle", methods=("sals",), shapes=(every[2], every[0]))).shapes
+    assert picked == (every[0], every[2])
+    assert resolve(RunConfig(mode="oracle", methods=("sals",), shapes=(every[2], every[0]), limit=1)).shapes == (every[0],)
+    with pytest.raises(ConfigError, match=rf"--shapes teapot: not a shape of dataset 'builtin' with these options "
+                                          rf"\({len(every)} shapes, e.g. {every[0]}, "):
+        resolve(RunConfig(mode="oracle", methods=("sals",), shapes=(every[0], "teapot")))
+    assert RunConfig(shapes=(every[0],)).identity_diff(RunConfig()) == [f"shapes=['{every[0]}'] there, [] now"]
+
+
 def test_a_settings_file_with_a_budget_in_oracle_mode_is_refused():
     with pytest.raises(ConfigError, match="run.toml: budget needs mode neural"):
         RunConfig.from_mapping({"mode": "oracle", "budget": "paper"}, where="run.toml")
