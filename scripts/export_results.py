@@ -83,10 +83,11 @@ def main(argv: list[str] | None = None) -> int:
         frames.insert(0, pd.read_csv(args.out))
     table = pd.concat(frames, ignore_index=True)
     job = keys + ([] if args.components else ["mode", "input"])
-    repeated = table[table.duplicated(job, keep=False)]
-    if len(repeated):
-        first = repeated.iloc[0]
-        print(f"export_results: {len(repeated) // 2 or 1} job(s) twice, e.g. "
+    repeated = table.duplicated(job)
+    if repeated.any():
+        first = table[repeated].iloc[0]
+        print(f"export_results: {int(repeated.sum())} job(s) twice (in the runs" + (f" or {args.out}" if args.append else "")
+              + "), e.g. "
               + ", ".join(f"{k}={first[k]}" for k in job), file=sys.stderr)
         return 2
     table = table.sort_values(keys, kind="stable")
