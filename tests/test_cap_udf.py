@@ -4,13 +4,17 @@ per-shape optimisation on a sphere cloud at the ``tiny`` budget."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
 
 from foundation.grid import grid_points, spacing
 from methods.base import get_method
-from methods.pointcloud.cap_udf.method import CAP_UDF_FAMILY, authors_frame, field_consistency_loss, learning_rate, voxel_downsample
+from methods.core.device import flush_denormals
+from methods.pointcloud.cap_udf.method import (CAP_UDF_FAMILY, authors_frame, field_consistency_loss, learning_rate,
+                                               nearest_indices, voxel_downsample)
 from methods.pointcloud.cap_udf.extraction import gradient_sign_marching_cubes, gradient_signs, remove_far_faces
 from methods.pointcloud.cap_udf.network import CAPUDFNetwork, pull
 
@@ -53,6 +57,19 @@ def test_field_consistency_loss_is_the_l1_chamfer_distance():
     b = torch.tensor([[0.0, 0.3, 0.0], [1.0, 0.0, 0.4], [5.0, 0.0, 0.0]])
     # a -> b: 0.3, 0.4 (mean 0.35); b -> a: 0.3, 0.4, 4 (mean 1.5667)
     assert float(field_consistency_loss(a, b)) == pytest.approx(0.5 * (0.35 + 4.7 / 3))
+
+
+def test_nearest_indices_inside_the_denormal_flush_on_coplanar_repeated_points():
+    # 500 targets of one CAP-UDF batch (ABC part 00013858, cpu budget, seed 0): 159 share one z, 3 repeat.
+    # With the fit's flush on, scipy's cKDTree recursed without end on them (a segmentation fault).
+    data = np.load(Path(__file__).parent / "data" / "cap_udf_coplanar_targets.npz")
+    queries, points = torch.from_numpy(data["queries"]), torch.from_numpy(data["points"])
+    with flush_denormals():
+        idx = nearest_indices(queries, points).numpy()
+    q, p = data["queries"].astype(np.float64), data["points"].astype(np.float64)
+    distances = np.linalg.norm(q[:, None] - p[None], axis=2)
+    assert idx.shape == (len(q),)
+    np.testing.assert_array_equal(distances[np.arange(len(q)), idx], distances.min(axis=1))
 
 
 def test_authors_frame_maps_the_bounding_box_to_unit_largest_side():

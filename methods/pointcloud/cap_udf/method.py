@@ -48,7 +48,7 @@ from methods.core.budgets import register_budget_family
 from methods.pointcloud.cap_udf.extraction import gradient_sign_marching_cubes, remove_far_faces
 from methods.pointcloud.cap_udf.network import CAPUDFNetwork, pull, udf_and_gradient
 from methods.core.device import get_device, seeded_generator
-from methods.pointcloud.neighbourhoods import band_points
+from methods.pointcloud.neighbourhoods import band_points, knn_neighbourhoods
 from foundation.grid import point_inputs
 from methods.core.training_loop import run_steps
 
@@ -149,10 +149,15 @@ def query_samples(cloud: np.ndarray, queries: int, rng: np.random.Generator) -> 
 
 def nearest_indices(queries: torch.Tensor, points: torch.Tensor, chunk: int = 4096) -> torch.Tensor:
     """Index (Q,) int64 of the nearest row of ``points`` (R, 3) for each row of ``queries`` (Q, 3),
-    no gradient: a KD-tree on the CPU, chunked ``cdist`` on CUDA (the same neighbours up to ties)."""
+    no gradient: the project's KD-tree (:func:`knn_neighbourhoods`, float64) on the CPU, chunked
+    ``cdist`` on CUDA (the same neighbours up to ties).
+
+    It runs inside the fit's denormal flush (:func:`methods.core.device.flush_denormals`), where
+    scipy's ``cKDTree`` can recurse without end on clouds with coplanar and repeated points (a
+    segmentation fault, not an error): hence not ``cKDTree`` here."""
     if queries.device.type == "cpu":
-        idx = cKDTree(points.detach().numpy()).query(queries.detach().numpy())[1]
-        return torch.from_numpy(np.asarray(idx, dtype=np.int64))
+        idx = knn_neighbourhoods(points.detach().numpy(), queries.detach().numpy(), 1)[:, 0]
+        return torch.from_numpy(idx)
     with torch.no_grad():
         return torch.cat([torch.cdist(queries[i:i + chunk], points).argmin(dim=1)
                           for i in range(0, len(queries), chunk)])
