@@ -4,6 +4,7 @@
     python scripts/export_results.py RUN_DIR [RUN_DIR ...] --commit SHA --out docs/results/NAME.csv
     python scripts/export_results.py RUN_DIR --components --commit SHA --out docs/results/NAME.csv
     python scripts/export_results.py RUN_DIR --commit SHA --out docs/results/NAME.csv --append
+    python scripts/export_results.py RUN_DIR --commit SHA --out docs/results/NAME.csv --append --replace-failed
 
 Columns: ``shape, method, seed, mode, budget, input, cd, nc, f1_005, f1_01, ecd, ef1, n_faces,
 status, error, seen_in_training, commit``. ``input``: ``mesh`` for the encode task (the GT mesh's
@@ -13,7 +14,8 @@ Rows are sorted by method, shape and seed; numbers keep 9 significant digits.
 
 ``--append`` adds the runs' jobs to an existing CSV, whose rows keep their own commits (new rows of the
 same table computed at a later commit); a job already in it (the same shape, method, seed, mode and
-input) is refused, naming it.
+input) is refused, naming it. With ``--replace-failed``, a job the CSV holds as failed and the runs hold as
+``ok`` (re-run after a fix, at the commit given) replaces it; every other repeat is still refused.
 
 ``--components`` exports a ``--decompose`` run's extractions instead (its components.csv): one row
 per job and set of exact components, columns :data:`COMPONENT_COLUMNS` (``exact``: the components
@@ -66,6 +68,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="export the runs' --decompose extractions (components.csv) instead of their jobs")
     parser.add_argument("--append", action="store_true",
                         help="add the runs' jobs to the existing --out, refusing a job it already has")
+    parser.add_argument("--replace-failed", action="store_true",
+                        help="with --append: an ok job of the runs replaces the same job held as failed in --out")
     args = parser.parse_args(argv)
     table_file, rows = ("components.csv", component_rows) if args.components else ("results.csv", job_rows)
     frames = []
@@ -81,8 +85,19 @@ def main(argv: list[str] | None = None) -> int:
             print(f"export_results: --append: {args.out} does not exist", file=sys.stderr)
             return 2
         frames.insert(0, pd.read_csv(args.out))
-    table = pd.concat(frames, ignore_index=True)
+    elif args.replace_failed:
+        print("export_results: --replace-failed needs --append (it replaces failed jobs of an existing CSV)",
+              file=sys.stderr)
+        return 2
     job = keys + ([] if args.components else ["mode", "input"])
+    replaced = 0
+    if args.replace_failed:
+        held, new = frames[0], pd.concat(frames[1:], ignore_index=True)
+        rerun = pd.MultiIndex.from_frame(new.loc[new.status == "ok", job])
+        superseded = (held.status != "ok") & pd.MultiIndex.from_frame(held[job]).isin(rerun)
+        replaced = int(superseded.sum())
+        frames[0] = held[~superseded]
+    table = pd.concat(frames, ignore_index=True)
     repeated = table.duplicated(job)
     if repeated.any():
         first = table[repeated].iloc[0]
@@ -96,7 +111,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.components:
         print(f"wrote {args.out}: {len(table)} extractions")
     else:
-        print(f"wrote {args.out}: {len(table)} jobs ({int((table.status == 'ok').sum())} ok)")
+        print(f"wrote {args.out}: {len(table)} jobs ({int((table.status == 'ok').sum())} ok)"
+              + (f", {replaced} failed job(s) replaced by their re-runs" if args.replace_failed else ""))
     return 0
 
 

@@ -68,3 +68,25 @@ def test_append_keeps_each_rows_commit_and_refuses_a_job_twice(tmp_path):
     assert list(zip(table["method"], table["commit"])) == [("nglod", "b"), ("sdf", "a")]
     assert script.main([str(later), "--commit", "c", "--out", str(out), "--append"]) == 2
     assert len(pd.read_csv(out)) == 2
+
+
+def test_replace_failed_puts_an_ok_rerun_in_place_of_the_failed_job_only(tmp_path):
+    script = load_script("export_results")
+    first = _run(tmp_path / "first", "reconstruct", "uniform", [
+        {"shape": "a", "method": "cap-udf", "seed": 0, "mode": "neural", "status": "failed", "error": "SIGSEGV"},
+        {"shape": "b", "method": "cap-udf", "seed": 0, "mode": "neural", "status": "ok", "cd": 0.004}])
+    rerun = _run(tmp_path / "rerun", "reconstruct", "uniform", [
+        {"shape": "a", "method": "cap-udf", "seed": 0, "mode": "neural", "status": "ok", "cd": 0.002},
+        {"shape": "b", "method": "cap-udf", "seed": 0, "mode": "neural", "status": "ok", "cd": 0.004}])
+    out = tmp_path / "out.csv"
+    assert script.main([str(first), "--commit", "a", "--out", str(out)]) == 0
+    assert script.main([str(rerun), "--commit", "b", "--out", str(out), "--replace-failed"]) == 2  # needs --append
+    # b is ok in the CSV: its repeat is refused, and nothing is written
+    assert script.main([str(rerun), "--commit", "b", "--out", str(out), "--append", "--replace-failed"]) == 2
+    assert list(pd.read_csv(out)["status"]) == ["failed", "ok"]
+    only_a = _run(tmp_path / "only_a", "reconstruct", "uniform", [
+        {"shape": "a", "method": "cap-udf", "seed": 0, "mode": "neural", "status": "ok", "cd": 0.002}])
+    assert script.main([str(only_a), "--commit", "b", "--out", str(out), "--append", "--replace-failed"]) == 0
+    table = pd.read_csv(out)
+    assert list(zip(table["shape"], table["status"], table["cd"], table["commit"])) == [
+        ("a", "ok", 0.002, "b"), ("b", "ok", 0.004, "a")]
