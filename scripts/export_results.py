@@ -71,6 +71,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--replace-failed", action="store_true",
                         help="with --append: an ok job of the runs replaces the same job held as failed in --out")
     args = parser.parse_args(argv)
+    if args.replace_failed and (args.components or not args.append):
+        print("export_results: --replace-failed needs --append and jobs, not --components (it replaces failed jobs "
+              "of an existing CSV)", file=sys.stderr)
+        return 2
     table_file, rows = ("components.csv", component_rows) if args.components else ("results.csv", job_rows)
     frames = []
     for run in args.runs:
@@ -85,10 +89,6 @@ def main(argv: list[str] | None = None) -> int:
             print(f"export_results: --append: {args.out} does not exist", file=sys.stderr)
             return 2
         frames.insert(0, pd.read_csv(args.out))
-    elif args.replace_failed:
-        print("export_results: --replace-failed needs --append (it replaces failed jobs of an existing CSV)",
-              file=sys.stderr)
-        return 2
     job = keys + ([] if args.components else ["mode", "input"])
     replaced = 0
     if args.replace_failed:
