@@ -95,11 +95,12 @@ def _named_shapes(shapes: list[str], names: tuple[str, ...], dataset: str) -> li
     dataset's order; ConfigError naming the first name the dataset lacks."""
     if not names:
         return shapes
-    unknown = set(names) - set(shapes)
+    wanted = set(names)
+    unknown = wanted - set(shapes)
     if unknown:
         raise ConfigError(f"--shapes {next(n for n in names if n in unknown)}: not a shape of dataset '{dataset}' "
                           f"with these options ({len(shapes)} shapes, e.g. {', '.join(shapes[:3])})")
-    return [s for s in shapes if s in names]
+    return [s for s in shapes if s in wanted]
 
 
 def resolve(config: RunConfig) -> Plan:
