@@ -16,6 +16,8 @@ eval_points the effective number of metric samples per mesh (int)
 device      e.g. 'cpu (<CPU model>)'; cpu_model, gpu: str or None
 git_commit  str or None
 execution   {'executor', 'workers', 'threads_per_job'} or None: how the jobs ran (:func:`execution_text`)
+sessions    optional: [{'started', 'execution', 'git_commit', 'tasks'}], one per invocation that ran tasks
+            in the run directory (named in :func:`execution_text` where their executions differ)
 sweep       optional: {key: [values in the user's order]} of a sweep run (:mod:`reports.sweep`);
             empty or missing when the run is not a sweep
 method_notes optional: {method: sentence} every caption carries (what a row is, where its name
@@ -84,10 +86,22 @@ def seeds_item(seeds) -> tuple[str, str]:
 
 
 def execution_text(context: dict) -> str:
-    """How the jobs ran: 'executor process, 2 workers x 1 torch thread'; '' where not recorded."""
+    """How the jobs ran: 'executor process, 2 workers x 1 torch thread'; where the invocations that
+    ran the tasks of one directory ran them differently (``sessions``), each with its task count:
+    'executor process, 2 workers x 1 torch thread (18 tasks); executor local, 1 worker x 2 torch
+    threads (2 tasks)'. '' where not recorded."""
+    ran = [s for s in context.get("sessions") or () if s.get("tasks") != 0 and (s.get("execution") or {}).get("executor")]
+    kinds = list(dict.fromkeys(_execution_words(s["execution"]) for s in ran))
+    if len(kinds) > 1:
+        def tasks(kind: str) -> str:
+            counts = [s["tasks"] for s in ran if _execution_words(s["execution"]) == kind]
+            return "tasks of an earlier run" if None in counts else f"{sum(counts)} tasks"
+        return "; ".join(f"{kind} ({tasks(kind)})" for kind in kinds)
     execution = context["execution"] or {}
-    if not execution.get("executor"):
-        return ""
+    return _execution_words(execution) if execution.get("executor") else ""
+
+
+def _execution_words(execution: dict) -> str:
     workers, threads = execution.get("workers"), execution.get("threads_per_job")
     text = f"executor {execution['executor']}"
     if workers:

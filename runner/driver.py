@@ -108,6 +108,24 @@ def _schedule(plan: Plan, todo: list, trained: frozenset[str] = frozenset()):
     return lambda t: (*rank[t.key], order[t.shape], 0 if t.kind == "floor" else 1)
 
 
+def session_record(record: dict, previous: dict, execution: dict, tasks: int) -> dict:
+    """config.json of this invocation: ``record`` (its config, plan and environment) with when and how
+    its tasks run (``started``, ``execution``) and ``sessions``, one entry per invocation that ran
+    tasks in this directory (when, how, at which commit, how many tasks). An invocation that finds
+    every task done keeps the environment, start and execution of the sessions that computed the
+    rows, so the provenance and the timing caption never name a machine or executor that ran nothing."""
+    sessions = list(previous.get("sessions") or ([] if "execution" not in previous else [
+        {"started": previous.get("started"), "execution": previous["execution"],
+         "git_commit": previous.get("environment", {}).get("git_commit"), "tasks": None}]))
+    if tasks == 0 and previous.get("execution"):
+        kept = {k: previous[k] for k in ("environment", "started", "execution") if k in previous}
+        return {**record, **kept, "sessions": sessions}
+    started = now_iso()
+    sessions.append({"started": started, "execution": execution,
+                     "git_commit": record.get("environment", {}).get("git_commit"), "tasks": tasks})
+    return {**record, "started": started, "execution": execution, "sessions": sessions}
+
+
 def _trained_networks(todo: list) -> frozenset[str]:
     """Fit identities of the learned reconstruction jobs in ``todo`` whose network their cache
     already holds (no job of theirs trains)."""
@@ -144,8 +162,7 @@ def run(plan: Plan, run_dir: RunDirectory, record: dict, executor=None) -> RunOu
     todo = [f for f in floors if f.key not in done_floors] + [j for j in jobs if j.key not in done_jobs]
     todo.sort(key=_schedule(plan, todo, _trained_networks(todo)))
     executor = executor or make_executor(config, len(todo))
-    record = {**record, "started": now_iso(), "execution": execution_record(executor)}
-    run_dir.write_config(record)
+    run_dir.write_config(session_record(record, run_dir.read_record(), execution_record(executor), len(todo)))
     total = len(floors) + len(jobs)
     skipped = total - len(todo)
     print(f"salsbench: {len(jobs)} jobs + {len(floors)} floor tasks, {skipped} already done, run dir {run_dir.path}",

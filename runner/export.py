@@ -86,6 +86,7 @@ def report_context(record: dict[str, Any]) -> dict[str, Any]:
         "device": env.get("device"), "cpu_model": env.get("cpu_model"), "gpu": env.get("gpu"),
         "git_commit": env.get("git_commit"), "sweep": sweep_of(record),
         "budget_params": config.get("budget_params", {}), "execution": record.get("execution"),
+        "sessions": record.get("sessions"),
         "method_notes": method_notes(config.get("task", "encode"), resolved.get("methods", []),
                                      resolved.get("method_params", {})),
         "up_axis": up_axis_of(config.get("dataset")),

@@ -35,3 +35,17 @@ def test_the_device_leaves_out_the_driver_threads_where_the_jobs_own_are_recorde
     assert device_text(dict(POISSON, execution=None)) == "cpu (2 threads) (Test CPU 3000)"  # nothing better known
     gpu = dict(POISSON, device="cuda: NVIDIA H100", gpu="NVIDIA H100", cpu_model=None)
     assert device_text(gpu) == "cuda: NVIDIA H100"
+
+
+def test_the_execution_names_each_way_the_tasks_of_one_directory_ran_with_their_counts():
+    process = {"executor": "process", "workers": 2, "threads_per_job": 1}
+    local = {"executor": "local", "workers": 1, "threads_per_job": 2}
+    one_way = dict(POISSON, sessions=[{"execution": process, "tasks": 18}, {"execution": process, "tasks": 2}])
+    assert execution_text(one_way) == "executor process, 2 workers x 1 torch thread"
+    two_ways = dict(POISSON, execution=local, sessions=[{"execution": process, "tasks": 18},
+                                                          {"execution": local, "tasks": 0},
+                                                          {"execution": local, "tasks": 2}])
+    assert execution_text(two_ways) == ("executor process, 2 workers x 1 torch thread (18 tasks); "
+                                        "executor local, 1 worker x 2 torch threads (2 tasks)")
+    older = dict(two_ways, sessions=[{"execution": process, "tasks": None}, {"execution": local, "tasks": 2}])
+    assert execution_text(older).startswith("executor process, 2 workers x 1 torch thread (tasks of an earlier run)")

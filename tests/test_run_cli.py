@@ -234,6 +234,30 @@ def test_second_resume_keeps_the_saved_configuration(fakes, tmp_path):
     assert len(df) == 4 and set(df.method) == {"test_sdf", "test_occ"} and (df["mode"] == "oracle").all()
 
 
+def test_an_invocation_with_nothing_left_keeps_the_record_of_those_that_ran_the_tasks(fakes, tmp_path):
+    """config.json and the timing caption name how the rows were computed: an invocation that finds
+    every task done (here with another thread count) changes neither; one that runs tasks differently
+    is added as a session, and the caption names both with their task counts."""
+    out, cache = tmp_path / "run", tmp_path / "cache"
+    args = oracle_args(out, cache, "--threads", "1")
+    args.remove("test_occ")
+    assert main(args) == 0
+    first = json.loads((out / "config.json").read_text())
+    assert first["execution"] == {"executor": "local", "workers": 1, "threads_per_job": 1}
+    assert [s["tasks"] for s in first["sessions"]] == [4]  # 2 shapes: 2 jobs and 2 floors
+    assert main(["--resume", "--out", str(out), "--quiet", "--threads", "2"]) == 0
+    again = json.loads((out / "config.json").read_text())
+    for key in ("execution", "started", "environment", "sessions"):
+        assert again[key] == first[key], key
+    assert "executor local, 1 worker x 1 torch thread." in (out / "timing.md").read_text()
+    assert main(["--resume", "--out", str(out), "--quiet", "--threads", "2", "--methods", "test_occ"]) == 0
+    added = json.loads((out / "config.json").read_text())
+    assert [s["tasks"] for s in added["sessions"]] == [4, 2]
+    assert added["execution"]["threads_per_job"] == 2 and added["sessions"][0] == first["sessions"][0]
+    assert ("executor local, 1 worker x 1 torch thread (4 tasks); executor local, 1 worker x 2 torch threads "
+            "(2 tasks).") in (out / "timing.md").read_text()
+
+
 def test_a_different_protocol_is_refused_naming_the_settings(fakes, tmp_path, capsys):
     """--resume with another grid is refused: one table never mixes two grids."""
     out, cache = tmp_path / "run", tmp_path / "cache"
