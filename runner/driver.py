@@ -84,28 +84,34 @@ def fresh_results(db: ResultsDB, table: str, tasks: list, codes: dict[str, str],
 
 
 def _schedule(plan: Plan, todo: list, trained: frozenset[str] = frozenset()):
-    """Sort key of the tasks: shape by shape, each shape's floor first; a job whose network an
-    earlier job already fits or trains (a sweep of extraction settings; every shape of a learned
-    reconstruction method) goes after every job that fits one, so parallel workers do not wait on
-    each other's fits but find the weights in the cache. The followers are ordered by when their
-    network's first job comes: those of a network trained early run while a later one still trains
-    (a K sweep: K = 10 and 20 reconstruct while K = 50 trains), rather than one worker waiting on
-    the last network's lock with ready jobs queued behind it. Jobs of a network in ``trained`` (fit
-    identities the cache already holds) wait on nothing and keep the table order, so a run stopped
-    part-way has whole shapes."""
+    """Sort key of the tasks, in three groups. First the jobs that fit or train their own network
+    (or need none), shape by shape in table order, so a run stopped part-way has whole shapes.
+    Then the floors (a shape's GT against a resample of itself: the shortest tasks of a run), so
+    that they fill the end of the fitting jobs: two workers finish within about a floor of each
+    other instead of one fitting the last network alone, and a worker that would wait on a network
+    still training takes a floor first. Last, the jobs whose network an earlier job fits or trains
+    (a sweep of extraction settings; every shape of a learned reconstruction method): parallel
+    workers do not wait on each other's fits but find the weights in the cache. These followers are
+    ordered by when their network's first job comes: those of a network trained early run while a
+    later one still trains (a K sweep: K = 10 and 20 reconstruct while K = 50 trains), rather than
+    one worker waiting on the last network's lock with ready jobs queued behind it. Jobs of a
+    network in ``trained`` (fit identities the cache already holds) wait on nothing and keep the
+    table order in the first group."""
     order = {s: i for i, s in enumerate(plan.shapes)}
     first: dict[str, int] = {}  # fit identity -> rank of the job that fits it, in table order
     rank: dict[str, tuple[int, int]] = {}
     for t in sorted(todo, key=lambda t: (order[t.shape], 0 if t.kind == "floor" else 1)):
         fit = t.fit_identity() if t.kind == "job" else None
-        if fit is None or fit in trained:
+        if t.kind == "floor":
+            rank[t.key] = (1, 0)
+        elif fit is None or fit in trained:
             rank[t.key] = (0, 0)
         elif fit in first:
-            rank[t.key] = (1, first[fit])
+            rank[t.key] = (2, first[fit])
         else:
             first[fit] = len(first)
             rank[t.key] = (0, 0)
-    return lambda t: (*rank[t.key], order[t.shape], 0 if t.kind == "floor" else 1)
+    return lambda t: (*rank[t.key], order[t.shape])
 
 
 def session_record(record: dict, previous: dict, execution: dict, tasks: int) -> dict:

@@ -166,9 +166,24 @@ def test_jobs_that_share_a_fit_are_scheduled_after_every_fitting_job(fakes, tmp_
     floors, jobs = build_tasks(plan)
     todo = sorted(floors + jobs, key=_schedule(plan, floors + jobs))
     kinds = [(t.kind, t.shape[:11], t.params.get("level") if t.kind == "job" else None) for t in todo]
-    assert kinds == [("floor", "builtin_000", None), ("job", "builtin_000", 0.0),
-                     ("floor", "builtin_001", None), ("job", "builtin_001", 0.0),
+    assert kinds == [("job", "builtin_000", 0.0), ("job", "builtin_001", 0.0),
+                     ("floor", "builtin_000", None), ("floor", "builtin_001", None),
                      ("job", "builtin_000", 0.01), ("job", "builtin_001", 0.01)]
+
+
+def test_the_floors_come_after_the_fitting_jobs_to_fill_the_end_of_the_run(tmp_path):
+    """The floors, the shortest tasks of an encode run, follow every job that fits, in shape order:
+    the last tasks two workers take are floors, not one worker's last fit."""
+    from runner.driver import _schedule
+    from runner.plan import build_tasks
+
+    args = build_parser().parse_args(["--methods", "sdf", "udf", "--limit", "2", "--out", str(tmp_path / "r")])
+    plan = resolve(configure(args, tmp_path / "r"))
+    floors, jobs = build_tasks(plan)
+    todo = sorted(floors + jobs, key=_schedule(plan, floors + jobs))
+    assert [(t.kind, t.shape[8:11], getattr(t, "method", None)) for t in todo] == [
+        ("job", "000", "sdf"), ("job", "000", "udf"), ("job", "001", "sdf"), ("job", "001", "udf"),
+        ("floor", "000", None), ("floor", "001", None)]
 
 
 def test_a_method_that_extracts_another_methods_fit_runs_after_every_job_that_fits(tmp_path):
@@ -182,7 +197,7 @@ def test_a_method_that_extracts_another_methods_fit_runs_after_every_job_that_fi
     floors, jobs = build_tasks(plan)
     todo = sorted(floors + jobs, key=_schedule(plan, floors + jobs))
     assert [(t.kind, t.shape[8:11], getattr(t, "method", None)) for t in todo] == [
-        ("floor", "000", None), ("job", "000", "sdf"), ("floor", "001", None), ("job", "001", "sdf"),
+        ("job", "000", "sdf"), ("job", "001", "sdf"), ("floor", "000", None), ("floor", "001", None),
         ("job", "000", "sdf-ndc"), ("job", "001", "sdf-ndc")]
     assert len({j.fit_identity() for j in jobs}) == 2  # one fit per shape
 
@@ -205,7 +220,7 @@ def test_a_k_sweep_runs_the_jobs_of_networks_trained_early_while_the_last_one_tr
     floors, jobs = build_tasks(plan)
     todo = sorted(floors + jobs, key=_schedule(plan, floors + jobs))
     order = [(t.kind, t.shape[8:11], t.budget_params.get("k") if t.kind == "job" else None) for t in todo]
-    assert order == [("floor", "000", None), ("job", "000", 10), ("job", "000", 50), ("floor", "001", None),
+    assert order == [("job", "000", 10), ("job", "000", 50), ("floor", "000", None), ("floor", "001", None),
                      ("floor", "002", None), ("job", "001", 10), ("job", "002", 10), ("job", "001", 50),
                      ("job", "002", 50)]
     assert len({j.fit_identity() for j in jobs}) == 2  # one network per K, whatever the shape
@@ -240,8 +255,8 @@ def test_jobs_of_a_network_the_cache_holds_keep_the_table_order(tmp_path):
     assert trained == {k10.fit_identity()}
     todo = sorted(floors + jobs, key=_schedule(plan, floors + jobs, trained))
     order = [(t.kind, t.shape[8:11], t.budget_params.get("k") if t.kind == "job" else None) for t in todo]
-    assert order == [("floor", "000", None), ("job", "000", 10), ("job", "000", 50), ("floor", "001", None),
-                     ("job", "001", 10), ("floor", "002", None), ("job", "002", 10), ("job", "001", 50),
+    assert order == [("job", "000", 10), ("job", "000", 50), ("job", "001", 10), ("job", "002", 10),
+                     ("floor", "000", None), ("floor", "001", None), ("floor", "002", None), ("job", "001", 50),
                      ("job", "002", 50)]
 
 
