@@ -28,6 +28,7 @@ vendored JavaScript in ``reports/vendor/``).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Callable
 
 import pandas as pd
 
@@ -47,7 +48,8 @@ __all__ = ["write_reports", "compare_runs", "render_mesh"]
 def write_reports(results: pd.DataFrame, floor: pd.DataFrame | None, context: dict, out_dir: Path,
                   meshes_dir: Path | None = None, *, gallery_limit: int = GALLERY_LIMIT,
                   checkpoints: pd.DataFrame | None = None,
-                  components: pd.DataFrame | None = None, max_bytes: int | None = None) -> dict[str, Path]:
+                  components: pd.DataFrame | None = None, max_bytes: int | None = None,
+                  map_shapes: Callable = map) -> dict[str, Path]:
     """Write the run's tables and report into ``out_dir``; returns {file name: path}.
 
     Tables first (cheap), then report.html, which renders thumbnails from
@@ -59,6 +61,8 @@ def write_reports(results: pd.DataFrame, floor: pd.DataFrame | None, context: di
     decomposition variant of a job: method, shape, seed, exact, metrics) adds the decomposition
     tables (:mod:`reports.decomposition`) to summary.md and the report. ``max_bytes``: report.html's
     size budget (default 30 MB or $SALSBENCH_REPORT_MAX_MB; :func:`reports.viewer.size_budget`).
+    ``map_shapes(fn, shapes)``: how report.html's per-shape drawings are made, in order (builtin
+    ``map``; the run layer passes its worker pool's, so several shapes are drawn at once).
     """
     out_dir = Path(out_dir)
     context, results = check_context(context), check_results(results)
@@ -75,7 +79,7 @@ def write_reports(results: pd.DataFrame, floor: pd.DataFrame | None, context: di
                                       gallery_limit=gallery_limit, checkpoints=checkpoints,
                                       sweep_html=sweep_html(sweep) if sweep is not None else "",
                                       robustness_html=robustness_html(robustness) if robustness is not None else "",
-                                      max_bytes=max_bytes)
+                                      max_bytes=max_bytes, map_shapes=map_shapes)
     return paths
 
 

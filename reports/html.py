@@ -14,8 +14,10 @@ stylesheet is ``report.css`` beside this module.
 from __future__ import annotations
 
 import base64
+from dataclasses import dataclass
 from html import escape
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import pandas as pd
@@ -146,17 +148,32 @@ def _gt_caption(vertices: np.ndarray, faces: np.ndarray) -> str:
     return f"{len(faces):,} faces · " + topology_text(validity["boundary_edges"], validity["nonmanifold_edges"])
 
 
-def _prediction_figure(summary: Summary, shape: str, method: str, path: Path, gt, bounds, size: int,
-                       vmax: float, up: str = "") -> tuple[str, str, str]:
-    """(shaded thumbnail, error-coloured thumbnail, caption) of one prediction, or placeholders."""
+@dataclass(frozen=True)
+class _FigureFacts:
+    """What the run's table says of one prediction, for its thumbnail: why every job failed (None
+    when one is ok), the notes under it and its metrics text."""
+
+    failed: str | None
+    notes: tuple[str, ...]
+    text: str
+
+
+def _figure_facts(summary: Summary, shape: str, method: str) -> _FigureFacts:
     jobs = summary.results[(summary.results["shape"] == shape) & (summary.results["method"] == method)]
     good = ok_jobs(jobs)
     if len(jobs) and not len(good):
         err = jobs["error"].dropna()
-        return (_placeholder("failed", "failed", one_line(err.iloc[0]) if len(err) else "no error text"), "",
-                f"{len(jobs)} job(s) failed")
-    notes = [f"{len(jobs) - len(good)} of {len(jobs)} seeds failed"] if len(jobs) > len(good) else []
-    text = _metrics_text(summary, shape, method)
+        return _FigureFacts(one_line(err.iloc[0]) if len(err) else "no error text", (f"{len(jobs)} job(s) failed",), "")
+    notes = (f"{len(jobs) - len(good)} of {len(jobs)} seeds failed",) if len(jobs) > len(good) else ()
+    return _FigureFacts(None, notes, _metrics_text(summary, shape, method))
+
+
+def _prediction_figure(facts: _FigureFacts, shape: str, method: str, path: Path, gt, bounds, size: int,
+                       vmax: float, up: str = "") -> tuple[str, str, str]:
+    """(shaded thumbnail, error-coloured thumbnail, caption) of one prediction, or placeholders."""
+    if facts.failed is not None:
+        return _placeholder("failed", "failed", facts.failed), "", " · ".join(facts.notes)
+    notes, text = list(facts.notes), facts.text
     if not path.is_file():
         return _placeholder("missing", "no mesh", f"{path.name} not found"), "", text
     try:
@@ -178,19 +195,23 @@ def _prediction_figure(summary: Summary, shape: str, method: str, path: Path, gt
     return shaded, err, " · ".join([text] + notes)
 
 
-def gallery_html(summary: Summary, meshes_dir: Path | None, colors: dict, limit: int, size: int,
-                 vmax: float, up: str = "") -> str:
-    """One card per shape (the first ``limit``): ``meshes_dir/<shape>/gt.ply`` and ``<method>.ply``,
-    rendered with the dataset's ``up`` axis ('x', 'y', 'z'; '': y) up in the image."""
-    if meshes_dir is None or not Path(meshes_dir).is_dir():
-        return '<p class="muted">No meshes directory: thumbnails are not available for this report.</p>'
-    if limit == 0:
-        return (f'<p class="muted">No thumbnails in this report (gallery limit 0); the meshes of its '
-                f'{len(summary.shapes)} shapes are in {esc(str(meshes_dir))}.</p>')
-    shapes = summary.shapes[:limit]
-    cards = []
-    for shape in shapes:
-        folder = Path(meshes_dir) / shape
+@dataclass(frozen=True)
+class _GalleryCard:
+    """The gallery card of a shape (``card(shape)``): its GT and every method's prediction from
+    ``meshes_dir/<shape>/``, with the facts the run's table gives of each. A plain picklable
+    callable, so the cards of several shapes can be drawn in parallel processes."""
+
+    meshes_dir: Path
+    methods: tuple[str, ...]
+    facts: dict  # {(shape, method): _FigureFacts}
+    colors: dict
+    size: int
+    vmax: float
+    up: str
+
+    def __call__(self, shape: str) -> str:
+        size, vmax, up = self.size, self.vmax, self.up
+        folder = Path(self.meshes_dir) / shape
         gt_path = folder / "gt.ply"
         gt = bounds = None
         if not gt_path.is_file():
@@ -207,15 +228,32 @@ def gallery_html(summary: Summary, meshes_dir: Path | None, colors: dict, limit:
             except Exception as exc:  # noqa: BLE001
                 gt = None
                 figures = [("GT", _placeholder("missing", "unreadable GT", one_line(exc)), "", "")]
-        figures += [(m, *_prediction_figure(summary, shape, m, folder / f"{m}.ply", gt, bounds, size, vmax, up))
-                    for m in summary.methods]
+        figures += [(m, *_prediction_figure(self.facts[shape, m], shape, m, folder / f"{m}.ply", gt, bounds, size,
+                                                vmax, up))
+                    for m in self.methods]
         html_figures = []
         for name, top, bottom, caption in figures:
-            dot = "" if name == "GT" else f'<i class="dot" style="background:{colors[name]}"></i>'
+            dot = "" if name == "GT" else f'<i class="dot" style="background:{self.colors[name]}"></i>'
             html_figures.append(f'<figure><figcaption class="name">{dot}{esc(name)}</figcaption>{top}{bottom}'
                                 f'<figcaption class="m">{esc(caption)}</figcaption></figure>')
-        cards.append(f'<div class="shape card" id="shape-{esc(shape)}"><h3>{esc(shape)}</h3>'
-                     f'<div class="row">{"".join(html_figures)}</div></div>')
+        return (f'<div class="shape card" id="shape-{esc(shape)}"><h3>{esc(shape)}</h3>'
+                f'<div class="row">{"".join(html_figures)}</div></div>')
+
+
+def gallery_html(summary: Summary, meshes_dir: Path | None, colors: dict, limit: int, size: int,
+                 vmax: float, up: str = "", map_shapes: Callable = map) -> str:
+    """One card per shape (the first ``limit``): ``meshes_dir/<shape>/gt.ply`` and ``<method>.ply``,
+    rendered with the dataset's ``up`` axis ('x', 'y', 'z'; '': y) up in the image. ``map_shapes(fn,
+    shapes)``: how the cards are drawn, in order (builtin ``map``, or a process pool's ``map``)."""
+    if meshes_dir is None or not Path(meshes_dir).is_dir():
+        return '<p class="muted">No meshes directory: thumbnails are not available for this report.</p>'
+    if limit == 0:
+        return (f'<p class="muted">No thumbnails in this report (gallery limit 0); the meshes of its '
+                f'{len(summary.shapes)} shapes are in {esc(str(meshes_dir))}.</p>')
+    shapes = summary.shapes[:limit]
+    facts = {(s, m): _figure_facts(summary, s, m) for s in shapes for m in summary.methods}
+    card = _GalleryCard(Path(meshes_dir), tuple(summary.methods), facts, dict(colors), size, vmax, up)
+    cards = list(map_shapes(card, shapes))
     more = ""
     if len(summary.shapes) > len(shapes):
         more = f'<p class="muted">Showing the first {len(shapes)} of {len(summary.shapes)} shapes.</p>'
@@ -314,11 +352,13 @@ def _page(title: str, subtitle: str, chips: list[tuple[str, str]], sections: lis
 def write_html(path: Path, summary: Summary, timing: pd.DataFrame, context: dict, meshes_dir: Path | None = None,
                *, gallery_limit: int = GALLERY_LIMIT, thumb_size: int = 256,
                checkpoints: pd.DataFrame | None = None, sweep_html: str = "", robustness_html: str = "",
-               max_bytes: int | None = None) -> Path:
+               max_bytes: int | None = None, map_shapes: Callable = map) -> Path:
     """Write report.html for one run (see the module docstring); returns ``path``. ``robustness_html``
     (:func:`reports.robustness.robustness_html`) and ``sweep_html`` (:func:`reports.sweep.sweep_html`),
     when given, are the first sections. ``max_bytes``: the page's size budget
-    (:func:`reports.viewer.size_budget`), which the 3D viewer's meshes are fitted into."""
+    (:func:`reports.viewer.size_budget`), which the 3D viewer's meshes are fitted into. ``map_shapes(fn,
+    shapes)`` draws the gallery's cards and the viewer's meshes shape by shape, in order (builtin
+    ``map``, or a process pool's ``map`` to draw several shapes at once)."""
     results = summary.results
     colors = method_colors(summary.methods)
     n_jobs, n_failed = len(results), int((results["status"] != "ok").sum())
@@ -337,7 +377,8 @@ def write_html(path: Path, summary: Summary, timing: pd.DataFrame, context: dict
     if len(summary.shapes) > plots.MAX_SHAPE_ROWS:
         shape_tables = f"<details><summary>Per-shape tables ({len(summary.shapes)} shapes)</summary>{shape_tables}</details>"
     gallery = colorbar_html(ERROR_VMAX, context["grid"]) + gallery_html(
-        summary, meshes_dir, colors, gallery_limit, thumb_size, ERROR_VMAX, context.get("up_axis") or "")
+        summary, meshes_dir, colors, gallery_limit, thumb_size, ERROR_VMAX, context.get("up_axis") or "",
+        map_shapes)
     context_html = ('<details><summary>Run context</summary><pre>'
                     + esc(dumps(context, indent=2)) + "</pre></details>")
     sections = [
@@ -366,7 +407,8 @@ def write_html(path: Path, summary: Summary, timing: pd.DataFrame, context: dict
     page_bytes = len(_page(title, subtitle, chips, sections).encode("utf-8"))
     viewer = viewer_html(summary.shapes, summary.methods, meshes_dir, lambda s, m: _view_caption(summary, s, m),
                          colors, preset=context["metric_preset"], up=context.get("up_axis") or "", vmax=ERROR_VMAX,
-                         page_budget=size_budget(max_bytes), page_bytes=page_bytes, limit=gallery_limit)
+                         page_budget=size_budget(max_bytes), page_bytes=page_bytes, limit=gallery_limit,
+                         map_shapes=map_shapes)
     sections = [(sid, name, viewer if sid == "viewer" else content) for sid, name, content in sections]
     path = Path(path)
     path.write_text(_page(title, subtitle, chips, sections), encoding="utf-8")

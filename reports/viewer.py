@@ -106,10 +106,11 @@ def _encode(V, F, cap: int, gt, gt_edges, edges, tau: float, vmax: float) -> tup
     return base64.b64encode(glb).decode("ascii"), len(shown_F)
 
 
-def shape_views(shape: str, folder: Path, methods: list[str], caption: Callable[[str, str], str], caps: dict,
+def shape_views(shape: str, folder: Path, methods: list[str], captions: dict[str, str], caps: dict,
                 *, preset: str, up: str, vmax: float, edge_cache: dict) -> ShapeViews:
-    """The views of ``shape`` (GT first, then ``methods``) with each mesh drawn at most ``caps[name]``
-    faces (all when absent). ``edge_cache`` keeps each mesh's edge points between calls."""
+    """The views of ``shape`` (GT first, then ``methods``, each with ``captions[method]``) with each
+    mesh drawn at most ``caps[name]`` faces (all when absent). ``edge_cache`` keeps each mesh's edge
+    points between calls."""
     gt_path = folder / "gt.ply"
     gt = gt_edges = None
     views = [View("GT", "")]
@@ -134,7 +135,7 @@ def shape_views(shape: str, folder: Path, methods: list[str], caption: Callable[
                                                vd.point_subset(gt_edges), tau, vmax)
         views[0].file_faces = len(gt[1])
     for method in methods:
-        view = View(method, caption(shape, method))
+        view = View(method, captions[method])
         views.append(view)
         path = folder / f"{method}.ply"
         if not path.is_file():
@@ -160,20 +161,54 @@ def shape_views(shape: str, folder: Path, methods: list[str], caption: Callable[
     return result
 
 
+@dataclass(frozen=True)
+class _Draw:
+    """``build(i, caps)`` as a callable of one ``(i, caps)`` item, for ``map_shapes``."""
+
+    build: Callable[[int, dict], ShapeViews]
+
+    def __call__(self, item: tuple[int, dict]) -> ShapeViews:
+        return self.build(*item)
+
+
+@dataclass
+class _ViewBuilder:
+    """``builder(i, caps)``: :func:`shape_views` of the ``i``-th of ``names``, picklable (plain
+    data), so that several shapes can be drawn in parallel processes. ``edge_cache`` keeps the edge
+    points of the meshes this copy has drawn."""
+
+    names: list[str]
+    meshes_dir: Path
+    methods: list[str]
+    captions: dict  # {(shape, method): caption}
+    preset: str
+    up: str
+    vmax: float
+    edge_cache: dict = field(default_factory=dict)
+
+    def __call__(self, i: int, caps: dict) -> ShapeViews:
+        shape = self.names[i]
+        return shape_views(shape, Path(self.meshes_dir) / shape, self.methods,
+                           {m: self.captions[shape, m] for m in self.methods}, caps, preset=self.preset, up=self.up,
+                           vmax=self.vmax, edge_cache=self.edge_cache)
+
+
 def _face_counts(shape_list: list[ShapeViews]) -> tuple[list[tuple[int, str]], np.ndarray]:
     keys = [(i, v.name) for i, s in enumerate(shape_list) for v in s.views if v.glb]
     counts = np.array([v.file_faces for s in shape_list for v in s.views if v.glb], dtype=np.int64)
     return keys, counts
 
 
-def fit_views(build: Callable[[int, dict], ShapeViews], n_shapes: int, budget: int) -> tuple[list[ShapeViews], int]:
+def fit_views(build: Callable[[int, dict], ShapeViews], n_shapes: int, budget: int,
+              map_shapes: Callable = map) -> tuple[list[ShapeViews], int]:
     """The views of the first ``n_shapes`` shapes (``build(i, caps)``) within ``budget`` bytes of
-    GLB text: drawn in full when they fit, else re-drawn with the caps of
+    GLB text: drawn in full when they fit (every shape through ``map_shapes``, in order: builtin
+    ``map`` or a process pool's, then ``build`` must pickle), else re-drawn with the caps of
     :func:`reports.viewer_data.face_caps` from the bytes per face measured so far, up to
     :data:`_PASSES` times; then shapes are left out from the last one until the rest fits.
     Returns (shapes kept, shapes left out)."""
-    cap0 = {}
-    shapes = [build(i, cap0) for i in range(n_shapes)]
+    draw = _Draw(build)
+    shapes = list(map_shapes(draw, [(i, {}) for i in range(n_shapes)]))
     for _ in range(_PASSES):
         keys, counts = _face_counts(shapes)
         total = sum(len(v.glb) for s in shapes for v in s.views)
@@ -181,10 +216,13 @@ def fit_views(build: Callable[[int, dict], ShapeViews], n_shapes: int, budget: i
             break
         drawn = sum(v.faces for s in shapes for v in s.views if v.glb)
         caps = vd.face_caps(np.minimum(counts, MAX_VIEW_FACES), 0.95 * budget, total / max(drawn, 1), MIN_VIEW_FACES)
+        again = []
         for i in sorted({i for i, _ in keys}):
             shape_caps = {name: int(c) for (j, name), c in zip(keys, caps) if j == i}
             if any(shape_caps[v.name] < v.faces for v in shapes[i].views if v.glb):
-                shapes[i] = build(i, shape_caps)
+                again.append((i, shape_caps))
+        for (i, _), views in zip(again, map_shapes(draw, again)):
+            shapes[i] = views
     dropped = 0
     while shapes and sum(len(v.glb) for s in shapes for v in s.views) > budget:
         shapes.pop()
@@ -250,11 +288,11 @@ def _notices(bundle: ViewerAssets) -> str:
 
 def viewer_html(shapes: list[str], methods: list[str], meshes_dir: Path | None, caption: Callable[[str, str], str],
                 colors: dict[str, str], *, preset: str, up: str, vmax: float, page_budget: int, page_bytes: int,
-                limit: int) -> str:
+                limit: int, map_shapes: Callable = map) -> str:
     """The viewer section's HTML: controls, legend, the data of the first ``limit`` shapes' views and
     the scripts, within what ``page_budget`` bytes leave beside the ``page_bytes`` of the rest of
     the page (UTF-8), else a note saying why there is no viewer. ``caption(shape, method)`` is a
-    method's caption (its metrics); ``colors`` {method: '#rrggbb'}."""
+    method's caption (its metrics); ``colors`` {method: '#rrggbb'}; ``map_shapes`` as in :func:`fit_views`."""
     if meshes_dir is None or not Path(meshes_dir).is_dir():
         return '<p class="muted">No meshes directory: the 3D viewer is not available for this report.</p>'
     if limit == 0 or not shapes:
@@ -268,13 +306,9 @@ def viewer_html(shapes: list[str], methods: list[str], meshes_dir: Path | None, 
         return (f'<p class="muted">No 3D viewer: the page\'s size budget ({page_budget / 1e6:g} MB, '
                 f'${SIZE_BUDGET_ENV}) leaves {max(page_budget - fixed, 0):,} bytes for its meshes.</p>')
     names = shapes[:limit]
-    cache: dict = {}
-
-    def build(i: int, caps: dict) -> ShapeViews:
-        return shape_views(names[i], Path(meshes_dir) / names[i], methods, caption, caps, preset=preset, up=up,
-                           vmax=vmax, edge_cache=cache)
-
-    fitted, dropped = fit_views(build, len(names), page_budget - fixed)
+    build = _ViewBuilder(names, Path(meshes_dir), list(methods), {(s, m): caption(s, m) for s in names for m in methods},
+                         preset, up, vmax)
+    fitted, dropped = fit_views(build, len(names), page_budget - fixed, map_shapes)
     data = {"vmax": vmax, "gtColor": _hex(render.GT_COLOR), "baseColor": _hex(render.BASE_COLOR),
             "dots": {m: colors.get(m, "#888888") for m in methods}, "dracoWasm": wasm,
             "shapes": [{"name": s.shape, "camera": s.camera, "views": [v.payload() for v in s.views]} for s in fitted]}

@@ -181,6 +181,7 @@ def run(plan: Plan, run_dir: RunDirectory, record: dict, executor=None) -> RunOu
         todo = [merged.get(t.key, t) for t in todo]
     display = Display(total, config.quiet, done=skipped)
     t0 = time.perf_counter()
+    finished = False
     try:
         for spec, outcome in executor.run(run_task, todo, on_stage=display.stage):
             if isinstance(outcome, BaseException):
@@ -189,11 +190,15 @@ def run(plan: Plan, run_dir: RunDirectory, record: dict, executor=None) -> RunOu
                 outcome.attempts = attempts.get(outcome.key, 0) + max(1, outcome.attempts)
             record_result(db, run_dir, outcome, config.seeds[0], codes[outcome.key])
             display.finished(outcome)
+        finished = True
     finally:
         display.close()
-        executor.close()
         wall = time.perf_counter() - t0
-        export(run_dir.path, db=db, record=run_dir.read_record(), gallery=config.gallery)
+        try:  # the report draws its shapes on the run's workers, unless the run was interrupted
+            export(run_dir.path, db=db, record=run_dir.read_record(), gallery=config.gallery,
+                   map_shapes=executor.map if finished else map)
+        finally:
+            executor.close()
         ok = len({t.key for t in floors} & db.ok_hashes("floor")) + len({t.key for t in jobs} & db.ok_hashes("jobs"))
         db.close()
     print(f"salsbench: {ok} ok, {total - ok} failed ({len(todo)} run now, {skipped} done before) in {wall:.1f} s; "

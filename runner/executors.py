@@ -129,6 +129,10 @@ class LocalExecutor:
                 outcome = exc
             yield spec, outcome
 
+    def map(self, fn: Callable, items: Sequence) -> list:
+        """``[fn(x) for x in items]`` in this process."""
+        return [fn(x) for x in items]
+
     def close(self) -> None:
         pass
 
@@ -317,6 +321,19 @@ class ProcessExecutor:
                     yield specs[i], WorkerLost(f"worker process died {attempts[i]} time(s) while running "
                                                f"{specs[i].label} ({death})")
 
+    def map(self, fn: Callable, items: Sequence) -> list:
+        """``[fn(x) for x in items]`` over the pool's workers (``fn`` and the items must pickle), in
+        order; in this process when there is one item, no pool, or the pool broke (a worker died)."""
+        items = list(items)
+        if self._pool is None or len(items) < 2:
+            return [fn(x) for x in items]
+        try:
+            return list(self._pool.map(fn, items))
+        except BrokenProcessPool:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool = None
+            return [fn(x) for x in items]
+
     def close(self) -> None:
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
@@ -399,6 +416,11 @@ class RayExecutor:
                 yield spec, outcome
             if on_stage is not None and pending:
                 on_stage(f"{len(pending)} task(s)", "queued/running on ray")
+
+    def map(self, fn: Callable, items: Sequence) -> list:
+        """``[fn(x) for x in items]`` in this process (the run directory's files are on this machine,
+        not necessarily on the cluster's)."""
+        return [fn(x) for x in items]
 
     def close(self) -> None:
         if self._started and self.ray.is_initialized():

@@ -111,13 +111,14 @@ def method_notes(task: str, names, params: dict) -> dict[str, str]:
 
 def export(run_dir: str | Path, db=None, record: dict[str, Any] | None = None,
            out_dir: str | Path | None = None, gallery: int | None = None,
-           only_complete_shapes: bool = False) -> dict[str, Any]:
+           only_complete_shapes: bool = False, map_shapes=map) -> dict[str, Any]:
     """Write results.csv, floor.csv and the reports of a run directory; returns what was written.
 
     ``gallery``: shapes with thumbnails in report.html (None: the report's default).
     ``only_complete_shapes``: every file covers only :func:`complete_shapes` (a run stopped
     part-way: every method's mean over the same shapes); the protocol line says how many of the
-    run's shapes that is.
+    run's shapes that is. ``map_shapes``: how the report's per-shape drawings are made (builtin
+    ``map``; the driver passes its executor's ``map``, which draws on the run's workers).
 
     A failure while writing the reports is reported on stderr and never loses results.csv.
     """
@@ -158,7 +159,8 @@ def export(run_dir: str | Path, db=None, record: dict[str, Any] | None = None,
         gallery_limit = {} if gallery is None else {"gallery_limit": gallery}
         written["reports"] = reports.write_reports(results, floor, context, out_dir, run_dir / "meshes",
                                                    **gallery_limit, checkpoints=checkpoints if len(checkpoints) else None,
-                                                   components=components if len(components) else None)
+                                                   components=components if len(components) else None,
+                                                   map_shapes=map_shapes)
     except Exception as exc:  # noqa: BLE001 -- the results are safe in results.db / results.csv
         print(f"salsbench: writing reports failed: {one_line(exc)}", file=sys.stderr)
         written["reports"] = None

@@ -222,6 +222,19 @@ def test_write_reports_contract_and_static_self_containment(report):
     assert "tied with sdf" in page and "tied by construction: sdf" in page
 
 
+def test_a_report_drawn_by_a_process_pool_is_the_report_drawn_in_one_process(report, tmp_path):
+    """The gallery's cards and the viewer's meshes drawn shape by shape in two spawned processes
+    (the run's workers draw them so) give the page of the one-process drawing, byte for byte."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    paths, out = report
+    results, floor = make_results()
+    with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn")) as pool:
+        pooled = reports.write_reports(results, floor, CONTEXT, tmp_path, out / "meshes", map_shapes=pool.map)
+    assert pooled["report.html"].read_bytes() == paths["report.html"].read_bytes()
+
+
 def test_missing_meshes_dir_and_unreadable_mesh(tmp_path):
     results, floor = make_results()
     paths = reports.write_reports(results, floor, CONTEXT, tmp_path / "a", None)

@@ -138,6 +138,25 @@ def test_process_executor_same_results_and_stage_reports():
     assert stages, "stage reports travel back from the workers"
 
 
+def _pid_of_square(i: int) -> tuple[int, int]:
+    return i * i, os.getpid()
+
+
+def test_process_executor_maps_over_its_workers_in_order_after_a_run_and_locally_before():
+    """``map`` (the report's drawings after the jobs) runs on the run's worker processes, in the
+    items' order; before any run there is no pool, and it runs in this process."""
+    ex = ProcessExecutor(workers=2, retries=0)
+    try:
+        assert ex.map(_pid_of_square, [3, 4]) == [(9, os.getpid()), (16, os.getpid())]
+        list(ex.run(_square, [_Spec(i) for i in range(2)]))
+        got = ex.map(_pid_of_square, range(6))
+    finally:
+        ex.close()
+    assert [v for v, _ in got] == [i * i for i in range(6)]
+    assert os.getpid() not in {pid for _, pid in got}
+    assert LocalExecutor().map(_pid_of_square, [2]) == [(4, os.getpid())]
+
+
 def test_process_executor_dead_worker_is_retried_then_reported():
     ex = ProcessExecutor(workers=2, retries=1)
     try:
