@@ -322,11 +322,14 @@ class ProcessExecutor:
                                                f"{specs[i].label} ({death})")
 
     def map(self, fn: Callable, items: Sequence) -> list:
-        """``[fn(x) for x in items]`` over the pool's workers (``fn`` and the items must pickle), in
-        order; in this process when there is one item, no pool, or the pool broke (a worker died)."""
+        """``[fn(x) for x in items]`` over the pool's workers (``fn`` and the items must pickle; the
+        pool is started when there is none), in order; in this process when there is one item or
+        the pool broke (a worker died)."""
         items = list(items)
-        if self._pool is None or len(items) < 2:
+        if len(items) < 2:
             return [fn(x) for x in items]
+        if self._pool is None:
+            self._pool = self._new_pool()
         try:
             return list(self._pool.map(fn, items))
         except BrokenProcessPool:

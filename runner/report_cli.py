@@ -52,8 +52,15 @@ def _report(args: argparse.Namespace) -> int:
     if args.complete_shapes and len(args.runs) > 1:
         raise ConfigError("--complete-shapes reads one run (compare finished runs side by side)")
     if len(args.runs) == 1:
-        written = export(Path(args.runs[0]), out_dir=Path(args.out) if args.out else None,
-                         only_complete_shapes=args.complete_shapes)
+        from runner.executors import ProcessExecutor, physical_cores
+
+        drawing = ProcessExecutor(workers=physical_cores(), retries=0, threads=1)  # the report's shapes, one per core
+        try:
+            written = export(Path(args.runs[0]), out_dir=Path(args.out) if args.out else None,
+                             only_complete_shapes=args.complete_shapes,
+                             map_shapes=drawing.map if drawing.workers > 1 else map)
+        finally:
+            drawing.close()
         print(f"wrote {written['results']}", file=sys.stderr)
         return 0
     out = Path(args.out) if args.out else Path("runs") / _dt.datetime.now().strftime("compare-%Y%m%d-%H%M%S")

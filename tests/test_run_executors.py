@@ -142,18 +142,24 @@ def _pid_of_square(i: int) -> tuple[int, int]:
     return i * i, os.getpid()
 
 
-def test_process_executor_maps_over_its_workers_in_order_after_a_run_and_locally_before():
+def test_process_executor_maps_over_its_workers_in_order():
     """``map`` (the report's drawings after the jobs) runs on the run's worker processes, in the
-    items' order; before any run there is no pool, and it runs in this process."""
+    items' order (a pool is started where none runs yet); one item runs in this process."""
     ex = ProcessExecutor(workers=2, retries=0)
     try:
-        assert ex.map(_pid_of_square, [3, 4]) == [(9, os.getpid()), (16, os.getpid())]
+        assert ex.map(_pid_of_square, [3]) == [(9, os.getpid())]
         list(ex.run(_square, [_Spec(i) for i in range(2)]))
+        workers = set(ex._pool._processes)
         got = ex.map(_pid_of_square, range(6))
     finally:
         ex.close()
     assert [v for v, _ in got] == [i * i for i in range(6)]
-    assert os.getpid() not in {pid for _, pid in got}
+    assert {pid for _, pid in got} <= workers
+    fresh = ProcessExecutor(workers=2, retries=0)
+    try:
+        assert [v for v, _ in fresh.map(_pid_of_square, [1, 2, 3])] == [1, 4, 9]
+    finally:
+        fresh.close()
     assert LocalExecutor().map(_pid_of_square, [2]) == [(4, os.getpid())]
 
 
