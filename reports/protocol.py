@@ -90,13 +90,13 @@ def execution_text(context: dict) -> str:
     ran the tasks of one directory ran them differently (``sessions``), each with its task count:
     'executor process, 2 workers x 1 torch thread (18 tasks); executor local, 1 worker x 2 torch
     threads (2 tasks)'. '' where not recorded."""
-    ran = [s for s in context.get("sessions") or () if s.get("tasks") != 0 and (s.get("execution") or {}).get("executor")]
-    kinds = list(dict.fromkeys(_execution_words(s["execution"]) for s in ran))
-    if len(kinds) > 1:
-        def tasks(kind: str) -> str:
-            counts = [s["tasks"] for s in ran if _execution_words(s["execution"]) == kind]
-            return "tasks of an earlier run" if None in counts else f"{sum(counts)} tasks"
-        return "; ".join(f"{kind} ({tasks(kind)})" for kind in kinds)
+    counts: dict[str, list] = {}  # how the tasks ran -> task counts of the sessions that ran them so
+    for s in context.get("sessions") or ():
+        if s.get("tasks") != 0 and (s.get("execution") or {}).get("executor"):
+            counts.setdefault(_execution_words(s["execution"]), []).append(s["tasks"])
+    if len(counts) > 1:
+        return "; ".join(f"{kind} ({'tasks of an earlier run' if None in n else f'{sum(n)} tasks'})"
+                         for kind, n in counts.items())
     execution = context["execution"] or {}
     return _execution_words(execution) if execution.get("executor") else ""
 

@@ -120,9 +120,10 @@ def session_record(record: dict, previous: dict, execution: dict, tasks: int) ->
     tasks in this directory (when, how, at which commit, how many tasks). An invocation that finds
     every task done keeps the environment, start and execution of the sessions that computed the
     rows, so the provenance and the timing caption never name a machine or executor that ran nothing."""
-    sessions = list(previous.get("sessions") or ([] if "execution" not in previous else [
-        {"started": previous.get("started"), "execution": previous["execution"],
-         "git_commit": previous.get("environment", {}).get("git_commit"), "tasks": None}]))
+    sessions = list(previous.get("sessions") or ())
+    if not sessions and previous.get("execution"):  # a directory written before sessions were recorded
+        sessions = [{"started": previous.get("started"), "execution": previous["execution"],
+                     "git_commit": previous.get("environment", {}).get("git_commit"), "tasks": None}]
     if tasks == 0 and previous.get("execution"):
         kept = {k: previous[k] for k in ("environment", "started", "execution") if k in previous}
         return {**record, **kept, "sessions": sessions}
