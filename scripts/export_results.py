@@ -9,12 +9,13 @@
 Columns: ``shape, method, seed, mode, budget, input, cd, nc, f1_005, f1_01, ecd, ef1, n_faces,
 status, error, seen_in_training, commit``. ``input``: ``mesh`` for the encode task (the GT mesh's
 exact fields), else the reconstruct task's input cloud (``uniform``, ``scan``, ``noise-2``, ...).
+``budget``: the budget's name followed by the run's ``--budget-param`` changes (``cpu steps=2400``).
 ``commit``: the commit whose code computed the rows (the frozen worktree a long run ran from).
 Rows are sorted by method, shape and seed; numbers keep 9 significant digits.
 
 ``--append`` adds the runs' jobs to an existing CSV, whose rows keep their own commits (new rows of the
-same table computed at a later commit); a job already in it (the same shape, method, seed, mode and
-input) is refused, naming it. With ``--replace-failed``, a job the CSV holds as failed and the runs hold as
+same table computed at a later commit); a job already in it (the same shape, method, seed, mode,
+budget and input) is refused, naming it. With ``--replace-failed``, a job the CSV holds as failed and the runs hold as
 ``ok`` (re-run after a fix, at the commit given) replaces it; every other repeat is still refused.
 
 ``--components`` exports a ``--decompose`` run's extractions instead (its components.csv): one row
@@ -38,16 +39,32 @@ COMPONENT_COLUMNS = ["shape", "method", "seed", "exact", "cd", "nc", "f1_005", "
                      "extract_s", "commit"]
 
 
-def run_input(run_dir: Path) -> str:
+def run_config(run_dir: Path) -> dict:
+    """The settings a run was given (its config.json's ``config``)."""
+    return json.loads((run_dir / "config.json").read_text())["config"]
+
+
+def run_input(config: dict) -> str:
     """What a run's jobs read: ``mesh`` (encode) or its reconstruct input (``pc_corruption``)."""
-    config = json.loads((run_dir / "config.json").read_text())["config"]
     return "mesh" if config.get("task", "encode") != "reconstruct" else str(config.get("pc_corruption", "uniform"))
+
+
+def budget_label(budget, budget_params: dict) -> str | None:
+    """A job's budget as the CSV names it: the budget's name and the run's ``--budget-param`` changes
+    (``cpu steps=2400``), so that a row fitted under a changed budget never reads as the named one."""
+    if budget is None or pd.isna(budget):
+        return None
+    return " ".join([str(budget), *(f"{k}={v}" for k, v in sorted(budget_params.items()))])
 
 
 def job_rows(run_dir: Path, commit: str) -> pd.DataFrame:
     """The jobs of one run directory (its results.csv) in :data:`COLUMNS`."""
+    config = run_config(run_dir)
     frame = pd.read_csv(run_dir / "results.csv")
-    frame["input"] = run_input(run_dir)
+    frame["input"] = run_input(config)
+    if "budget" in frame:
+        changes = config.get("budget_params") or {}
+        frame["budget"] = [budget_label(b, changes) for b in frame["budget"]]
     frame["commit"] = commit
     return frame.reindex(columns=COLUMNS)
 
@@ -89,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"export_results: --append: {args.out} does not exist", file=sys.stderr)
             return 2
         frames.insert(0, pd.read_csv(args.out))
-    job = keys + ([] if args.components else ["mode", "input"])
+    job = keys + ([] if args.components else ["mode", "budget", "input"])
     replaced = 0
     if args.replace_failed:
         held, new = frames[0], pd.concat(frames[1:], ignore_index=True)

@@ -10,9 +10,10 @@ import pandas as pd
 from tests.scripts import load_script
 
 
-def _run(path: Path, task: str, corruption: str, rows: list[dict]) -> Path:
+def _run(path: Path, task: str, corruption: str, rows: list[dict], budget_params: dict | None = None) -> Path:
     path.mkdir()
-    (path / "config.json").write_text(json.dumps({"config": {"task": task, "pc_corruption": corruption}}))
+    config = {"task": task, "pc_corruption": corruption, "budget_params": budget_params or {}}
+    (path / "config.json").write_text(json.dumps({"config": config}))
     pd.DataFrame(rows).to_csv(path / "results.csv", index=False)
     return path
 
@@ -35,6 +36,21 @@ def test_every_job_with_its_status_input_and_commit(tmp_path):
     assert np.isnan(failed["cd"]) and failed["error"].startswith("fit:")
     assert list(table["input"]) == ["scan", "mesh", "mesh"] and set(table["commit"]) == {"abc1234"}
     assert script.main([str(tmp_path / "nope"), "--commit", "x", "--out", str(out)]) == 2
+
+
+def test_a_changed_budget_is_named_with_its_changes(tmp_path):
+    script = load_script("export_results")
+    rows = [{"shape": "a", "method": "sals", "seed": 0, "mode": "neural", "budget": "cpu", "status": "ok"},
+            {"shape": "a", "method": "udf", "seed": 0, "mode": "oracle", "status": "ok"}]
+    changed = _run(tmp_path / "changed", "encode", "uniform", rows, {"steps": 2400, "lr": 0.005})
+    out = tmp_path / "out.csv"
+    assert script.main([str(changed), "--commit", "c", "--out", str(out)]) == 0
+    table = pd.read_csv(out).set_index("method")
+    assert table.loc["sals", "budget"] == "cpu lr=0.005 steps=2400"
+    assert np.isnan(table.loc["udf", "budget"])  # oracle: nothing fitted
+    named = _run(tmp_path / "named", "encode", "uniform", rows[:1])
+    assert script.main([str(named), "--commit", "c", "--out", str(out), "--append"]) == 0  # another job
+    assert sorted(pd.read_csv(out).budget.dropna()) == ["cpu", "cpu lr=0.005 steps=2400"]
 
 
 def test_components_export_one_row_per_job_and_exact_set(tmp_path):
