@@ -52,7 +52,7 @@ def run_input(config: dict) -> str:
 def budget_label(budget, budget_params: dict) -> str | None:
     """A job's budget as the CSV names it: the budget's name and the run's ``--budget-param`` changes
     (``cpu steps=2400``), so that a row fitted under a changed budget never reads as the named one."""
-    if budget is None or pd.isna(budget):
+    if pd.isna(budget):  # oracle rows: nothing fitted
         return None
     return " ".join([str(budget), *(f"{k}={v}" for k, v in sorted(budget_params.items()))])
 
