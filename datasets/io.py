@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from foundation.errors import one_line
 from foundation.storage import mesh_hash
 from foundation.surface import MIN_RELATIVE_AREA, relative_area
 from datasets.formats import (
@@ -225,13 +226,13 @@ def read_mesh_file(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     except MeshError as exc:
         raise MeshError(f"{what}: {exc}") from None
     except (ValueError, IndexError, OverflowError) as exc:
-        raise MeshError(f"{what}: unreadable {kind} ({_one_line(exc)})") from None
+        raise MeshError(f"{what}: unreadable {kind} ({one_line(exc, with_type=False)})") from None
     try:
         with quiet_trimesh():
             loaded = trimesh.load(source, file_type=suffix[1:], process=False, maintain_order=True)
     except Exception as exc:  # trimesh raises many exception types on corrupt files
         problem = "PLY data does not match its header" if suffix == ".ply" else f"unreadable {kind}"
-        raise MeshError(f"{what}: {problem} ({_one_line(exc)})") from None
+        raise MeshError(f"{what}: {problem} ({one_line(exc, with_type=False)})") from None
     if isinstance(loaded, trimesh.Scene):
         meshes = [g for g in loaded.geometry.values() if isinstance(g, trimesh.Trimesh)]
         if loaded.geometry and not meshes:
@@ -266,11 +267,6 @@ def quiet_trimesh():
             yield
     finally:
         logger.setLevel(level)
-
-
-def _one_line(exc: BaseException) -> str:
-    text = str(exc).strip()
-    return " ".join(text.split())[:200] if text else type(exc).__name__
 
 
 def classify_topology(faces: np.ndarray) -> str:

@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from foundation.errors import one_line
 from datasets.formats import decode_text, ply_bytes
 from datasets.io import (
     MESH_EXTENSIONS,
@@ -83,8 +84,7 @@ def read_scan(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
     except MeshError as exc:
         raise MeshError(f"{path}: {exc}") from None
     except Exception as exc:  # noqa: BLE001 -- any parser failure is one line naming the file
-        raise MeshError(f"{path}: cannot read the point cloud ({type(exc).__name__}: "
-                        f"{str(exc).strip().splitlines()[0] if str(exc).strip() else 'unreadable'})") from None
+        raise MeshError(f"{path}: cannot read the point cloud ({one_line(exc)})") from None
     points = _checked_points(path, data)
     if sensors is not None:
         with np.errstate(over="ignore"):

@@ -89,13 +89,6 @@ def as_bool(values: pd.Series) -> pd.Series:
     return pd.to_numeric(values, errors="coerce").fillna(0) > 0.5
 
 
-def one_line(text) -> str:
-    """An error text on one line (whitespace runs collapsed); a placeholder when none was recorded."""
-    if text is None or (isinstance(text, float) and not np.isfinite(text)):
-        return "(no error text recorded)"
-    return " ".join(str(text).split())
-
-
 def sensors_note(results: pd.DataFrame) -> str | None:
     """Which methods were given each input point's sensor position (``used_sensors``: the input was a
     scan and the method uses sensors), in one sentence; None when none was."""

@@ -22,11 +22,12 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 
+from foundation.errors import one_line
 from foundation.metrics import mesh_validity
 from foundation.serialize import dumps
 import reports.plots as plots
 import reports.render as render
-from reports.frames import numeric, ok_jobs, one_line
+from reports.frames import numeric, ok_jobs
 from reports.protocol import device_text, execution_text, protocol_items, report_title
 from reports.style import method_colors
 from reports.statistics import tests_against_best

@@ -18,9 +18,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from foundation.errors import one_line
 from foundation.schema import columns as schema_columns
 from reports.decomposition import decomposition_tables
-from reports.frames import (as_bool, check_floor, check_results, numeric, ok_jobs, one_line, sensors_note, unscored_jobs,
+from reports.frames import (as_bool, check_floor, check_results, numeric, ok_jobs, sensors_note, unscored_jobs,
                             without_unscored)
 from reports.protocol import check_context, headline_metrics, protocol_caption, report_title
 from reports.statistics import AGGREGATION, Statistics, method_statistics, statistic_table, statistics_frame

@@ -26,7 +26,7 @@ import reports.render as render
 import reports.viewer_data as vd
 from foundation.metrics.presets import get_preset
 from datasets.io import read_mesh_file
-from reports.frames import one_line
+from foundation.errors import one_line
 from reports.glb import draco_glb
 from reports.viewer_assets import ViewerAssets, assets
 
@@ -38,9 +38,8 @@ SIZE_BUDGET_ENV = "SALSBENCH_REPORT_MAX_MB"
 #: draws a dozen views of that many smoothly).
 MIN_VIEW_FACES = 2_000
 MAX_VIEW_FACES = 1_000_000
-#: First estimate of a view's bytes per drawn face (Draco GLB in base64, colours and edge points
-#: included); each pass after the first uses the ratio measured on the views themselves.
-BYTES_PER_FACE = 2.5
+#: Times the views are re-drawn with the caps the bytes per face measured so far allow, before shapes
+#: are left out.
 _PASSES = 4
 #: Below this many bytes left for the meshes, the page has no viewer (a note says why).
 MIN_MESH_BYTES = 20_000

@@ -144,7 +144,7 @@ def export(run_dir: str | Path, db=None, record: dict[str, Any] | None = None,
         context.update(shapes=[s for s in context["shapes"] if s in keep], planned_shapes=len(context["shapes"]))
     out_dir.mkdir(parents=True, exist_ok=True)  # after reading: a database that cannot be read writes nothing
     import reports
-    from runner.job import one_line
+    from foundation.errors import one_line
 
     results.to_csv(out_dir / "results.csv", index=False, float_format="%.9g")
     floor.to_csv(out_dir / "floor.csv", index=False, float_format="%.9g")

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from foundation.errors import one_line
 from runner.config import ConfigError, RunConfig, import_plugins
 from tasks import FloorSpec, JobSpec
 from tasks.spec import JOB_TYPES
@@ -136,7 +137,7 @@ def resolve(config: RunConfig) -> Plan:
                               f"{', '.join(PRESETS)}")
         preset = PRESETS[config.metric_preset]
     except (ParamError, ValueError) as exc:
-        raise ConfigError(str(exc).splitlines()[0]) from None
+        raise ConfigError(one_line(exc, with_type=False)) from None
     if config.executor == "ray":
         try:
             import ray  # noqa: F401
@@ -152,7 +153,7 @@ def resolve(config: RunConfig) -> Plan:
     try:
         shapes = list(load_dataset(config.dataset, options).names())
     except (ValueError, OSError) as exc:  # DatasetError is a ValueError
-        raise ConfigError(str(exc).splitlines()[0] if str(exc) else type(exc).__name__) from None
+        raise ConfigError(one_line(exc, with_type=False)) from None
     shapes = _named_shapes(shapes, config.shapes, config.dataset)[: config.limit]
     if not shapes:
         raise ConfigError(f"dataset '{config.dataset}' has no shapes with these options ({options or 'none'})")
@@ -191,7 +192,7 @@ def _train_dirs(config: RunConfig, methods: tuple[str, ...]) -> tuple[str, ...]:
         try:
             get_dataset("meshes", data_dir=d).names()
         except (ValueError, OSError) as exc:
-            raise ConfigError(f"--train-dir {d}: {str(exc).splitlines()[0]}") from None
+            raise ConfigError(f"--train-dir {d}: {one_line(exc, with_type=False)}") from None
     return dirs
 
 
@@ -253,7 +254,7 @@ def _variants(config: RunConfig, rows: dict[str, RowKind]) -> tuple[dict[str, tu
                 params = {m: rows[m].checked_params(cfg.method_params.get(m, {})) for m in methods}
             except (ParamError, ValueError) as exc:
                 where = f"--sweep point {sweeps.variant_tag(values)}: " if values else ""
-                raise ConfigError(where + str(exc).splitlines()[0]) from None
+                raise ConfigError(where + one_line(exc, with_type=False)) from None
             out.append(Variant(values, cfg, params, keys, first=(i == 0 and mode == config.mode)))
     return typed, tuple(out)
 

@@ -4,7 +4,7 @@ The driver (:mod:`runner.driver`) is its only writer; every finished task is com
 once (WAL journal), so killing the process loses at most the tasks in flight. Readers (reports,
 ``sqlite3``, pandas) may open it at any time.
 
-Tables (``SCHEMA_VERSION`` 2; columns declared in :mod:`foundation.schema`):
+Tables (:data:`SCHEMA_VERSION`; columns declared in :mod:`foundation.schema`):
 
 * ``jobs`` -- one row per job, primary key ``config_hash`` (the task key, :mod:`tasks`);
   a re-run of a failed job replaces its row.
@@ -33,16 +33,18 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 import pandas as pd
 
+from foundation.errors import one_line
 from foundation.schema import PRIMARY_KEYS, TABLES, sql_columns
 from foundation.serialize import dumps
 
 SCHEMA_VERSION = 3
 DB_NAME = "results.db"
 
-JOB_COLUMNS: dict[str, str] = sql_columns("jobs")
-FLOOR_COLUMNS: dict[str, str] = sql_columns("floor")
-CHECKPOINT_COLUMNS: dict[str, str] = sql_columns("checkpoints")
-COMPONENT_COLUMNS: dict[str, str] = sql_columns("components")
+#: Each table's SQL column declarations {name: type and constraints}, from foundation.schema's columns.
+JOB_SQL: dict[str, str] = sql_columns("jobs")
+FLOOR_SQL: dict[str, str] = sql_columns("floor")
+CHECKPOINT_SQL: dict[str, str] = sql_columns("checkpoints")
+COMPONENT_SQL: dict[str, str] = sql_columns("components")
 #: Declared columns that hold measured values (metrics, mesh counts, timings).
 MEASURED = {c.name for table in TABLES.values() for c in table if c.role in ("metric", "validity", "timing")}
 
@@ -120,7 +122,7 @@ class ResultsDB:
                 self._create()
         except sqlite3.DatabaseError as exc:  # not an SQLite file, or a damaged one
             self.close()
-            raise SchemaMismatch(f"{self.path}: not a readable results database ({_one_line(exc)})") from None
+            raise SchemaMismatch(f"{self.path}: not a readable results database ({one_line(exc, with_type=False)})") from None
         except SchemaMismatch:
             self.close()
             raise
@@ -236,12 +238,12 @@ class ResultsDB:
     def write_job(self, fixed: Mapping[str, Any], metrics: Mapping[str, Any] | None = None,
                   timings: Mapping[str, Any] | None = None, sweep: Mapping[str, Any] | None = None,
                   fitted: int | None = None) -> None:
-        """Insert (or replace) one job row and commit. ``fixed`` holds :data:`JOB_COLUMNS` fields;
+        """Insert (or replace) one job row and commit. ``fixed`` holds :data:`JOB_SQL` fields;
         ``sweep`` the job's sweep values, each in its column ``sweep.<key>``; ``fitted`` 1 when the
         job trained its network (0: weights from the cache or a cached mesh)."""
         if "config_hash" not in fixed:
             raise KeyError("a job row needs its config_hash")
-        row = self.flatten(fixed, [metrics or {}, timings or {}], JOB_COLUMNS)
+        row = self.flatten(fixed, [metrics or {}, timings or {}], JOB_SQL)
         row.update({f"{SWEEP_PREFIX}{k}": scalar(v)[1] for k, v in (sweep or {}).items()})
         if fitted is not None:
             row["fitted"] = int(fitted)
@@ -249,10 +251,10 @@ class ResultsDB:
 
     def write_floor(self, fixed: Mapping[str, Any], metrics: Mapping[str, Any] | None = None,
                     timings: Mapping[str, Any] | None = None) -> None:
-        """Insert (or replace) one floor row and commit. ``fixed`` holds :data:`FLOOR_COLUMNS` fields."""
+        """Insert (or replace) one floor row and commit. ``fixed`` holds :data:`FLOOR_SQL` fields."""
         if "floor_hash" not in fixed:
             raise KeyError("a floor row needs its floor_hash")
-        self._commit("floor", [self.flatten(fixed, [metrics or {}, timings or {}], FLOOR_COLUMNS)])
+        self._commit("floor", [self.flatten(fixed, [metrics or {}, timings or {}], FLOOR_SQL)])
 
     def write_checkpoints(self, config_hash: str, fixed: Mapping[str, Any], rows: list[Mapping[str, Any]]) -> None:
         """Replace the checkpoint rows of one job (``rows``: fraction, step, fit_elapsed_s, metrics,
@@ -269,7 +271,7 @@ class ResultsDB:
                           keys: tuple[str, ...], row_hash) -> None:
         """The rows of ``table`` that belong to one job, replaced by ``rows`` (their ``keys`` are key
         columns, the rest metrics and timings) in one transaction."""
-        columns = {"checkpoints": CHECKPOINT_COLUMNS, "components": COMPONENT_COLUMNS}[table]
+        columns = {"checkpoints": CHECKPOINT_SQL, "components": COMPONENT_SQL}[table]
         flat = [self.flatten({PRIMARY_KEYS[table]: row_hash(r), "config_hash": config_hash,
                               **{k: r[k] for k in keys}, **fixed},
                              [{k: v for k, v in r.items() if k not in keys}], columns)
@@ -303,7 +305,7 @@ class ResultsDB:
                 if sql_type.upper() == "REAL" and name in df.columns:  # all-NULL columns come back as None
                     df[name] = pd.to_numeric(df[name], errors="coerce").astype(float)
         except (sqlite3.DatabaseError, pd.errors.DatabaseError) as exc:
-            raise SchemaMismatch(f"{self.path}: damaged results database ({_one_line(exc)})") from None
+            raise SchemaMismatch(f"{self.path}: damaged results database ({one_line(exc, with_type=False)})") from None
         return df
 
     def close(self) -> None:
@@ -328,7 +330,4 @@ def open_run_db(run_dir: str | Path, must_exist: bool = False) -> ResultsDB:
         raise FileNotFoundError(f"{run_dir}: no {DB_NAME} (not a salsbench run directory?)")
     return ResultsDB(path, create=not must_exist)
 
-
-def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).split())[:200] or type(exc).__name__
 

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from runner.records import DB_NAME, JOB_COLUMNS, ResultsDB, SchemaMismatch, column_name, open_run_db
+from runner.records import DB_NAME, JOB_SQL, ResultsDB, SchemaMismatch, column_name, open_run_db
 from tests.loader_fuzz import FLOATS, loads_or_refuses
 
 
@@ -25,7 +25,7 @@ def _job(hash_, status="ok", **kw):
 
 def test_schema_created_with_wal(tmp_path):
     db = ResultsDB(tmp_path / DB_NAME)
-    assert set(JOB_COLUMNS) <= set(db.columns("jobs"))
+    assert set(JOB_SQL) <= set(db.columns("jobs"))
     assert {"floor_hash", "shape", "status"} <= set(db.columns("floor"))
     assert db.conn.execute("PRAGMA journal_mode").fetchone()[0].lower() == "wal"
     assert db.get_meta("schema_version") == "3"
@@ -100,10 +100,10 @@ def test_bad_rows_and_missing_db(tmp_path):
 
 
 def test_column_names():
-    assert column_name("cd", JOB_COLUMNS) == "cd"
-    assert column_name("seed", JOB_COLUMNS) == "metric_seed"
-    assert column_name("f1@0.005", JOB_COLUMNS) == "f1_0_005"
-    assert column_name("1x", JOB_COLUMNS) == "m_1x"
+    assert column_name("cd", JOB_SQL) == "cd"
+    assert column_name("seed", JOB_SQL) == "metric_seed"
+    assert column_name("f1@0.005", JOB_SQL) == "f1_0_005"
+    assert column_name("1x", JOB_SQL) == "m_1x"
 
 
 # -- property-based: any results.db gives tables or one SchemaMismatch line (issue 41, item 2) -------
@@ -140,7 +140,7 @@ def _read_or_refuse(path):
     assert path.read_bytes() == before, "reading changed the database"
     if frames is not None:
         for table, frame in frames.items():
-            assert {k for k, c in JOB_COLUMNS.items() if "PRIMARY" in c} <= set(frames["jobs"].columns)
+            assert {k for k, c in JOB_SQL.items() if "PRIMARY" in c} <= set(frames["jobs"].columns)
             assert "shape" in frame.columns
     return frames
 

@@ -14,6 +14,7 @@ import sys
 
 import numpy as np
 
+from foundation.errors import one_line
 from foundation.metrics.evaluate import evaluate
 from foundation.metrics.presets import PRESETS, MetricPreset
 from foundation.serialize import dumps
@@ -91,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
         result = evaluate(gt_v, gt_f, pred_v, pred_f, preset=args.preset, seed=args.seed, n_points=args.points,
                           metres_per_unit=metres_per_unit)
     except (ValueError, MemoryError) as exc:  # MeshError is a ValueError
-        print(f"error: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}", file=sys.stderr)
+        print(f"error: {one_line(exc, with_type=False)}", file=sys.stderr)
         return 2
     result["gt"], result["pred"] = str(args.gt), str(args.pred)
     result["normalized"] = not args.no_normalize
