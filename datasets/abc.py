@@ -51,7 +51,6 @@ from datasets.registry import (
 EXTENSION_PREFERENCE = (".ply", ".obj", ".off", ".stl", ".glb", ".gltf")
 
 _ABC_STEM = re.compile(r"^(?P<id>\d{8})(?:_(?P<hash>[0-9a-fA-F]{8,}))?(?P<part>_trimesh_\d+)?$")
-_TRIMESH_SUFFIX = re.compile(r"_trimesh_\d+$")
 
 
 def scan_meshes(data_dir: Path, recursive: bool = True) -> list[Path]:

@@ -29,7 +29,7 @@ import numpy as np
 from foundation.fields import FIELDS_VERSION, ExactFields, default_band
 from foundation.grid import EdgeField, num_edges
 from foundation.registry import Registry
-from foundation.storage import CacheStats, CorruptEntry, mesh_hash, read_checked, write_checked
+from foundation.storage import CacheStats, CorruptEntry, mesh_hash, read_entry, write_checked
 
 __all__ = ["FieldCache", "cache_key", "CACHE_KINDS"]
 
@@ -131,15 +131,9 @@ class FieldCache:
         """
         spec = _KINDS.get(kind)
         path = self.path(fields, N, kind, band)
-        if path is not None:
-            try:
-                payload = read_checked(path)
-                if payload is not None:
-                    value = _read_payload(spec, N, payload, path)
-                    self.stats.hit("fields")
-                    return value
-            except CorruptEntry as exc:
-                self.stats.reject(exc)
+        value = read_entry(path, self.stats, "fields", lambda payload: _read_payload(spec, N, payload, path))
+        if value is not None:
+            return value
         arrays = spec.compute(fields, N, band)
         if path is not None:
             buffer = io.BytesIO()

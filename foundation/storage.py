@@ -9,6 +9,8 @@
   payload``. Reading checks the digest: a flipped byte, a truncated file or a file that is not an
   entry raises :class:`CorruptEntry`, so the caller recomputes (and counts it) instead of using
   damaged weights, meshes or fields.
+* :func:`read_entry` -- an entry read, checked and decoded, or refused and counted
+  (:class:`CacheStats`); :func:`entry_lock` -- the lock one entry's writer holds while others wait.
 * :func:`mesh_hash` -- the content hash of a mesh's arrays, which keys exact-field caches and the
   seeds of a shape's jobs (never its name or position).
 """
@@ -21,13 +23,15 @@ import hashlib
 import os
 import tempfile
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator, TypeVar
 
 import numpy as np
 
 #: First bytes of a checksummed cache entry (format version 1).
 MAGIC = b"SALSBENCH-ENTRY-1\n"
 _DIGEST = 32
+
+T = TypeVar("T")
 
 
 class CorruptEntry(ValueError):
@@ -122,3 +126,33 @@ class CacheStats:
 
     def reject(self, error: Exception) -> None:
         self.rejected.append(str(error))
+
+
+def read_entry(path: str | os.PathLike | None, stats: CacheStats, kind: str, decode: Callable[[bytes], T],
+               refused: tuple[type[Exception], ...] = ()) -> T | None:
+    """The value of the checksummed entry at ``path`` (``decode`` of its payload), counted in
+    ``stats`` as a hit of ``kind``; None when there is no entry (or ``path`` is None: the cache is
+    off). An entry whose checksum fails, or that ``decode`` refuses (:class:`CorruptEntry` or one of
+    ``refused``), is None too and counted in ``stats.rejected`` with one line naming the file: the
+    caller computes the value again and overwrites the entry, never uses it."""
+    if path is None:
+        return None
+    try:
+        payload = read_checked(path)
+        if payload is None:
+            return None
+        value = decode(payload)
+    except CorruptEntry as exc:
+        stats.reject(exc)
+        return None
+    except refused as exc:
+        stats.reject(f"{path}: {exc}")
+        return None
+    stats.hit(kind)
+    return value
+
+
+def entry_lock(cache_root: str | os.PathLike, name: str):
+    """The exclusive lock (:func:`exclusive_lock`) of the cache entry ``name`` under ``cache_root``
+    (``locks/<name>.lock``): the job that computes the entry holds it, the others wait, then read it."""
+    return exclusive_lock(Path(cache_root) / "locks" / f"{name}.lock")

@@ -25,11 +25,14 @@ import pandas as pd
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from foundation.metrics.presets import PRESETS  # noqa: E402
 from reports.significance import bootstrap_mean_ci, paired_wilcoxon  # noqa: E402
 
 REFERENCE = REPO / "docs" / "results" / "paper-reference.csv"
-SCALE = {"cd": 1e3, "ecd": 1e2}
-LOWER_IS_BETTER = {"cd", "ecd"}
+#: The paper's metrics: the default preset's (its table multipliers and better directions).
+HEADLINE = {m.column: m for m in PRESETS["default"].headline_metrics()}
+SCALE = {k: m.scale for k, m in HEADLINE.items()}
+LOWER_IS_BETTER = {k for k, m in HEADLINE.items() if m.lower_is_better}
 
 
 def _fmt(value: float, metric: str) -> str:

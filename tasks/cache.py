@@ -36,7 +36,7 @@ from typing import Iterator
 import numpy as np
 
 from foundation.field_cache import FieldCache
-from foundation.storage import CacheStats, CorruptEntry, exclusive_lock, read_checked, write_checked
+from foundation.storage import CacheStats, entry_lock, read_entry, write_checked
 from tasks.spec import digest
 
 #: Top-level packages whose modules enter code digests.
@@ -263,15 +263,6 @@ class RunCaches:
     def _path(self, kind: str, method: str, key: str, suffix: str) -> Path | None:
         return None if self.root is None else self.root / kind / f"{method}_{key}{suffix}"
 
-    def _read(self, path: Path | None) -> bytes | None:
-        if path is None:
-            return None
-        try:
-            return read_checked(path)
-        except CorruptEntry as exc:
-            self.stats.reject(exc)
-            return None
-
     # -- weights ----------------------------------------------------------------------------
     def load_weights(self, method, key: str, device):
         """(model, final loss) from the cache, or None (absent, damaged or refused: the caller fits
@@ -280,17 +271,9 @@ class RunCaches:
         from methods.core import fitting
         from methods.core.weights import WeightsError
 
-        path = self._path("weights", method.fit_name, key, ".pt")
-        data = self._read(path)
-        if data is None:
-            return None
-        try:
-            loaded = fitting.model_from_bytes(data, device=device, method_name=method.fit_name)
-        except (WeightsError, ValueError) as exc:
-            self.stats.reject(f"{path}: {exc}")
-            return None
-        self.stats.hit("weights")
-        return loaded
+        return read_entry(self._path("weights", method.fit_name, key, ".pt"), self.stats, "weights",
+                          lambda data: fitting.model_from_bytes(data, device=device, method_name=method.fit_name),
+                          refused=(WeightsError, ValueError))
 
     def save_weights(self, method, key: str, fit, budget) -> None:
         from methods.core import fitting
@@ -301,27 +284,18 @@ class RunCaches:
 
     @contextlib.contextmanager
     def fit_lock(self, method, key: str) -> Iterator[None]:
-        """Hold the exclusive lock of one weights entry (:func:`foundation.storage.exclusive_lock`): a
+        """Hold the lock of one weights entry (:func:`foundation.storage.entry_lock`): a
         second job needing the same fit waits, then loads it."""
-        path = self._path("locks", f"weights_{method.fit_name}", key, ".lock")
-        if path is None:
+        if self.root is None:
             yield
             return
-        with exclusive_lock(path):
+        with entry_lock(self.root, f"weights_{method.fit_name}_{key}"):
             yield
 
     # -- meshes -----------------------------------------------------------------------------
     def load_mesh(self, method: str, key: str):
         """(vertices, faces, timings, info, fit_loss) from the cache, or None."""
-        data = self._read(self._path("meshes", method, key, ".npz"))
-        if data is None:
-            return None
-        with np.load(io.BytesIO(data), allow_pickle=False) as z:
-            loss = float(z["fit_loss"])
-            mesh = (np.asarray(z["vertices"]), np.asarray(z["faces"]), json.loads(str(z["timings"])),
-                    json.loads(str(z["info"])), None if np.isnan(loss) else loss)
-        self.stats.hit("mesh")
-        return mesh
+        return read_entry(self._path("meshes", method, key, ".npz"), self.stats, "mesh", _mesh_from_bytes)
 
     def save_mesh(self, method: str, key: str, vertices, faces, timings: dict, info: dict, fit_loss) -> None:
         path = self._path("meshes", method, key, ".npz")
@@ -331,3 +305,11 @@ class RunCaches:
         np.savez(buf, vertices=vertices, faces=faces, timings=json.dumps(timings), info=json.dumps(info),
                  fit_loss=np.float64(np.nan if fit_loss is None else fit_loss))
         write_checked(path, buf.getvalue())
+
+
+def _mesh_from_bytes(data: bytes):
+    """(vertices, faces, timings, info, fit_loss) of a mesh entry's payload (:meth:`RunCaches.save_mesh`)."""
+    with np.load(io.BytesIO(data), allow_pickle=False) as z:
+        loss = float(z["fit_loss"])
+        return (np.asarray(z["vertices"]), np.asarray(z["faces"]), json.loads(str(z["timings"])),
+                json.loads(str(z["info"])), None if np.isnan(loss) else loss)

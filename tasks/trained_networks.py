@@ -19,7 +19,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Callable
 
-from foundation.storage import CacheStats, CorruptEntry, exclusive_lock, read_checked, write_checked
+from foundation.storage import CacheStats, entry_lock, read_entry, write_checked
 
 #: The cache folder of the trained networks (every learned reconstruction method's, one file each).
 TRAINED_NETWORKS = "trained_networks"
@@ -49,7 +49,6 @@ def default_train_dirs() -> tuple[str, ...]:
     return (str(DEFAULT_TRAIN_DIR.resolve()),) if DEFAULT_TRAIN_DIR.is_dir() else ()
 
 
-@lru_cache(maxsize=4)
 @lru_cache(maxsize=8)
 def _shapes(count: int, dirs: tuple[str, ...]):
     from methods.pointcloud.training_set import DEFAULT_TRAINING_SEED, training_shapes
@@ -101,23 +100,12 @@ def trained_network(method, budget, train_dirs: tuple[str, ...], cache_root: str
     root = Path(cache_root)
     path = network_path(root, method, key)
     facts = {"network_key": key, "trained": 0, "training_shapes": len(shapes)}
-    with exclusive_lock(root / "locks" / f"{TRAINED_NETWORKS}_{method.name}_{key}.lock"):
-        try:
-            data = read_checked(path)
-        except CorruptEntry as exc:
-            if stats is not None:
-                stats.reject(exc)
-            data = None
-        if data is not None:
-            try:
-                model = method.network_from_bytes(data, device=device)
-            except (WeightsError, ValueError) as exc:  # not a plain weights record: refused unread, retrained
-                if stats is not None:
-                    stats.reject(f"{path}: {exc}")
-            else:
-                if stats is not None:
-                    stats.hit("network")
-                return model, facts
+    stats = CacheStats() if stats is None else stats
+    with entry_lock(root, f"{TRAINED_NETWORKS}_{method.name}_{key}"):
+        model = read_entry(path, stats, "network", lambda data: method.network_from_bytes(data, device=device),
+                           refused=(WeightsError, ValueError))  # not a plain weights record: refused unread
+        if model is not None:
+            return model, facts
         result = method.train_network(list(shapes), budget, seed=DEFAULT_TRAINING_SEED, device=device,
                                       progress=progress)
         write_checked(path, method.network_to_bytes(result, budget))
