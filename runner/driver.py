@@ -178,7 +178,7 @@ def run(plan: Plan, run_dir: RunDirectory, record: dict, executor=None) -> RunOu
     if blockwise:
         from runner.blocks import run_blocks
 
-        merged = {j.key: j for j in run_blocks(blockwise, run_dir.path, executor)}
+        merged = {j.key: j for j in run_blocks(blockwise, run_dir.path, executor, codes)}
         todo = [merged.get(t.key, t) for t in todo]
     display = Display(total, config.quiet, done=skipped)
     t0 = time.perf_counter()

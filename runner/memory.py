@@ -1,10 +1,12 @@
-"""A job's memory limit (``--worker-memory``) and how a failed allocation reads in its row."""
+"""A job's memory limit (``--worker-memory``), how a failed allocation reads in its row, and the
+peak resident memory of a task."""
 
 from __future__ import annotations
 
 import contextlib
+from pathlib import Path
 
-__all__ = ["memory_limit", "out_of_memory"]
+__all__ = ["memory_limit", "out_of_memory", "reset_peak_rss", "peak_rss_mib"]
 
 #: Messages of the allocation failures that are not a MemoryError: torch's CPU allocator, C++'s
 #: std::bad_alloc as some bindings pass it on.
@@ -43,3 +45,24 @@ def out_of_memory(exc: BaseException) -> bool:
         return True
     text = str(exc).lower()
     return isinstance(exc, RuntimeError) and any(m in text for m in _ALLOCATION_FAILURES)
+
+
+def reset_peak_rss() -> None:
+    """Start a new peak of resident memory for this process (Linux: ``/proc/self/clear_refs``); a
+    worker calls it before each task, so that :func:`peak_rss_mib` is that task's."""
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+    except OSError:
+        pass
+
+
+def peak_rss_mib() -> float | None:
+    """The peak resident memory of this process since :func:`reset_peak_rss` (or its start), in MiB
+    (``VmHWM``); None where the system does not say."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return None

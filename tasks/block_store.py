@@ -1,8 +1,8 @@
-"""Block-wise jobs' stored blocks (:mod:`runner.blocks`): what a block task is, where its result is
-kept, and the merge of a job's blocks into its mesh.
+"""Block-wise jobs' stored blocks (:mod:`tasks.blocks` computes them, :mod:`runner.blocks` schedules
+them): what a block task is and where its result is kept.
 
-Each block's result is ``OUT/blocks/<job key>/<block>.npz`` (written atomically by the driver as
-it arrives): an edge-field method's intersected edges (``ids``, ``s``, ``normals``), any other
+Each block's result is ``OUT/blocks/<job key>_<code>/<block>.npz`` (written atomically by the
+driver as it arrives): an edge-field method's intersected edges (``ids``, ``s``, ``normals``), any other
 method's piece (``vertices``, ``faces``), the points it read and ``meta`` (its seconds, peak
 resident memory and halo).
 """
@@ -47,13 +47,19 @@ def read_scene(folder: Path) -> Scene:
     return Scene(**json.loads((Path(folder) / SCENE_FILE).read_text()))
 
 
-def by_edges(method) -> bool:
-    """Whether the method's blocks give edges (it has an edge field) rather than mesh pieces."""
-    return callable(getattr(method, "edge_field", None))
+def blocks_folder(run_dir: Path, job: JobSpec, code: str) -> Path:
+    """Where a block-wise job's cloud, scene and blocks are kept: ``blocks/<job key>_<code>`` of the
+    run directory, ``code`` the job's code digest (:func:`tasks.cache.task_code_digest`), so that
+    blocks computed by other code are never merged."""
+    return Path(run_dir) / "blocks" / f"{job.key}_{code}"
 
 
-def blocks_folder(run_dir: Path, job: JobSpec) -> Path:
-    return Path(run_dir) / "blocks" / job.key
+def other_code_folders(run_dir: Path, job: JobSpec, code: str) -> list[Path]:
+    """The job's blocks folders of other code than ``code`` (:func:`blocks_folder`), and the one of
+    earlier versions, which named no code (``blocks/<job key>``)."""
+    keep, root = blocks_folder(run_dir, job, code), Path(run_dir) / "blocks"
+    found = [*root.glob(f"{job.key}_*"), root / job.key]
+    return sorted(p for p in found if p != keep and p.is_dir())
 
 
 @dataclass(frozen=True)
@@ -125,35 +131,3 @@ def read_blocks(job: JobSpec) -> tuple[list[tuple[Block, dict[str, Any]]], list[
 
 class BlocksMissing(RuntimeError):
     """A block-wise job whose blocks did not all finish."""
-
-
-def merged_extraction(job: JobSpec, method):
-    """The job's mesh from its stored blocks (module docstring, step 3), with the blocks' facts."""
-    from methods.base import Extraction
-    from methods.pointcloud.blocks import BlockEdges, merge_edges, merge_pieces
-
-    if job.blocks_dir is None:
-        raise BlocksMissing("a block-wise job needs its blocks run first (runner.blocks.run_blocks)")
-    found, missing = read_blocks(job)
-    if missing:
-        raise BlocksMissing(f"{len(missing)} of {len(missing) + len(found)} blocks did not finish "
-                            f"(first: {missing[0]}; see the run's log)")
-    scene = read_scene(job.blocks_dir)
-    N = scene.grid
-    if by_edges(method):
-        parts = [BlockEdges(b, a["ids"], a["s"], a.get("normals"), int(a["queried"]), int(a["points"]))
-                 for b, a in found]
-        out = merge_edges(parts, N, qef_cutoff=method.params["qef_cutoff"], faces=method.params["faces"])
-    else:
-        V, F = merge_pieces((a["vertices"], a["faces"]) for _, a in found)
-        out = Extraction(V, F, info={"blocks": len(found)})
-    with np.load(Path(job.blocks_dir) / CLOUD_FILE, mmap_mode="r") as cloud:
-        out.info.update(input_points=int(cloud["points"].shape[0]), used_sensors=bool(
-            method.uses_sensors and "sensors" in cloud.files))
-    seconds = [a["meta"]["seconds"] for _, a in found]
-    peaks = [a["meta"]["peak_rss_mib"] for _, a in found if a["meta"]["peak_rss_mib"] is not None]
-    out.info.update(blocks=len(found), block_points_max=int(max((int(a["points"]) for _, a in found), default=0)),
-                    blocks_s=float(sum(seconds)), block_s_max=float(max(seconds, default=0.0)),
-                    block_peak_rss_mib=float(max(peaks)) if peaks else float("nan"),
-                    scene_grid=N, input_scale=scene.input_scale, scene_rule=scene.rule)
-    return out

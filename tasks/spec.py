@@ -90,7 +90,7 @@ class JobSpec(TaskSpec):
     kind = "job"
     #: The task whose body computes the job (``tasks.<task>``).
     task: ClassVar[str] = ""
-    #: A reconstruction job run block by block (:mod:`runner.blocks` prepares its blocks first).
+    #: A reconstruction job run block by block (:mod:`runner.blocks` runs its blocks first).
     block_wise: ClassVar[bool] = False
 
     @property
@@ -195,7 +195,7 @@ class ReconstructJob(JobSpec):
     pc_points, pc_noise, pc_corruption : the input cloud (:mod:`foundation.corruptions`).
     pc_blocks, pc_scene_grid : block-wise reconstruction of a scene (0: the whole grid at once).
     train_dirs : the extra training folders of a learned method. blocks_dir : where a block-wise
-    job's blocks are (:mod:`runner.blocks`; not identity).
+    job's blocks are (:mod:`tasks.blocks`; not identity).
     """
 
     budget: str | None = None
@@ -221,6 +221,12 @@ class ReconstructJob(JobSpec):
     @property
     def block_wise(self) -> bool:  # type: ignore[override]
         return bool(self.pc_blocks)
+
+    @property
+    def body(self) -> str:
+        """``tasks.reconstruct``, or ``tasks.blocks`` for a block-wise job (whose blocks are computed
+        there too, so that their code is the job's code digest)."""
+        return "tasks.blocks" if self.pc_blocks else "tasks.reconstruct"
 
     def task_identity(self) -> dict:
         # mode and checkpoints: the key layout of the single job type of earlier versions, kept so

@@ -1,4 +1,5 @@
-"""runner/blocks.py: the blocks of a scene as executor tasks, stored as they finish, merged by the job."""
+"""runner/blocks.py: the blocks of a scene as executor tasks, stored as they finish, merged by the job,
+and kept only while the code that computed them is today's."""
 
 from __future__ import annotations
 
@@ -13,11 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tasks.block_store import CLOUD_FILE, BlockResult, BlockTask, Scene, write_block, write_scene
-from runner.blocks import crop_cloud
+from tasks.block_store import CLOUD_FILE
 from runner.config import ConfigError, RunConfig
 from tasks.spec import ReconstructJob
-from methods.pointcloud.blocks import Block
 
 REPO = Path(__file__).resolve().parents[1]
 ARGS = ["--task", "reconstruct", "--dataset", "rooms", "--limit", "1", "--methods", "poisson", "--grid", "24",
@@ -48,35 +47,6 @@ def _job(**kw) -> ReconstructJob:
 def test_a_block_wise_job_has_its_own_key():
     assert _job().key != _job(pc_blocks=8).key != _job(pc_blocks=8, pc_scene_grid=256).key
     assert _job(pc_blocks=8, blocks_dir="/x").key == _job(pc_blocks=8).key  # where the blocks are is no identity
-
-
-def test_crop_cloud_reads_the_box_in_chunks(tmp_path, monkeypatch):
-    import runner.blocks as blocks
-
-    rng = np.random.default_rng(0)
-    points = rng.uniform(-1, 1, (1000, 3))
-    np.savez(tmp_path / CLOUD_FILE, points=points, sensors=points + 5)
-    monkeypatch.setattr(blocks, "CROP_CHUNK", 64)
-    box = (np.array([-0.5, -0.5, -0.5]), np.array([0.0, 0.5, 0.5]))
-    got, sensors = crop_cloud(tmp_path / CLOUD_FILE, box, 0.1)
-    inside = np.all((points >= box[0] - 0.1) & (points <= box[1] + 0.1), axis=1)
-    np.testing.assert_array_equal(got, points[inside])
-    np.testing.assert_array_equal(sensors, points[inside] + 5)
-
-
-def test_a_stored_block_round_trips(tmp_path):
-    from tasks.block_store import read_blocks
-
-    job = _job(grid=8, pc_blocks=8, blocks_dir=str(tmp_path))
-    write_scene(tmp_path, Scene(8, 1.0, "given"))
-    task = BlockTask(job, Block(8, (0, 0, 0), (8, 8, 8)), 0.0, str(tmp_path))
-    faces = np.array([[0, 1, 2]])
-    write_block(BlockResult(task, "ok", {"vertices": np.eye(3), "faces": faces, "points": np.int64(3)}, 1.5, 200.0))
-    found, missing = read_blocks(job)
-    assert missing == [] and len(found) == 1
-    block, arrays = found[0]
-    assert block == task.block and arrays["meta"]["seconds"] == 1.5 and arrays["meta"]["peak_rss_mib"] == 200.0
-    np.testing.assert_array_equal(arrays["faces"], faces)
 
 
 @pytest.mark.slow
@@ -118,20 +88,55 @@ def test_a_killed_block_wise_run_resumes_without_recomputing_finished_blocks(tmp
     assert n_faces == len(reconstruct_by_windows(get_method("poisson"), points, 32, 16, 24).faces) > 0
 
 
-def test_the_scene_grid_of_a_learned_method_follows_its_training_density():
-    """POCO's rule: a cloud twice as dense as the training clouds gets a grid of 2 (grid - 1) + 1
-    points; a method without a network keeps --grid; a given grid is kept."""
-    from methods.base import get_method
-    from methods.pointcloud.training_set import training_neighbour_distance
-    from runner.blocks import scene_of
 
-    job = dataclasses.replace(_job(grid=33, pc_blocks=8), method="sals-knn", budget="tiny")
-    method = get_method("sals-knn")
-    reference = training_neighbour_distance(method.training_cloud_points(method.budget("tiny")))
-    spacing = reference / 2
-    lattice = spacing * np.stack(np.meshgrid(np.arange(60.0), np.arange(60.0), [0.0], indexing="ij"), -1).reshape(-1, 3)
-    scene = scene_of(job, lattice)
-    assert (scene.grid, scene.input_scale) == (65, 2.0)
-    assert scene.cloud_neighbour_distance == pytest.approx(spacing) and scene.training_neighbour_distance == reference
-    assert scene_of(_job(grid=33, pc_blocks=8), lattice).grid == 33  # poisson: its own grid
-    assert scene_of(_job(grid=33, pc_blocks=8, pc_scene_grid=40), lattice).grid == 40
+
+#: The modules that compute a block-wise Poisson job (its body, the block geometry, the method,
+#: the shared reconstruct steps, the stored blocks, the input cloud): an edit to any one of them
+#: makes the finished job stale.
+BLOCK_COMPUTING = ("tasks/blocks.py", "tasks/block_store.py", "tasks/reconstruct.py", "methods/pointcloud/blocks.py",
+                   "methods/pointcloud/poisson.py", "foundation/corruptions.py")
+#: Modules of the run layer around it: an edit there re-runs nothing.
+BLOCK_SCHEDULING = ("runner/blocks.py", "runner/job.py")
+
+
+@pytest.mark.slow
+def test_an_edit_to_any_module_that_computes_a_block_wise_job_makes_it_stale(tmp_path):
+    """A finished block-wise run, then copies of the code with an unused function appended to one
+    module: each computing module's edit refuses the run as stale before any work (exit 2, one
+    line), a scheduling module's edit re-runs nothing, and --recompute-stale after an edit re-makes
+    every block in a new folder and removes the old one."""
+    import shutil
+
+    copy = tmp_path / "copy"
+    for name in ("foundation", "datasets", "methods", "reports", "runner", "tasks"):
+        shutil.copytree(REPO / name, copy / name, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(REPO / "run_benchmark.py", copy / "run_benchmark.py")
+    out = tmp_path / "run"
+
+    def run(*extra):
+        return subprocess.run([sys.executable, "run_benchmark.py", *ARGS, "--executor", "local", "--out", str(out),
+                               *extra], cwd=copy, capture_output=True, text=True, timeout=600)
+
+    first = run()
+    assert first.returncode == 0, first.stderr[-2000:]
+    (folder,) = out.glob("blocks/*")
+    for module in (*BLOCK_COMPUTING, *BLOCK_SCHEDULING):
+        path = copy / module
+        original = path.read_text()
+        path.write_text(original + "\n\ndef an_unused_function():\n    return 'nothing calls this'\n")
+        proc = run()
+        path.write_text(original)
+        if module in BLOCK_COMPUTING:
+            assert proc.returncode == 2, f"{module}: {proc.stderr[-800:]}"
+            (line,) = proc.stderr.strip().splitlines()
+            assert "1 finished jobs rows (poisson) were computed by other code than today's" in line, (module, line)
+        else:
+            assert proc.returncode == 0 and "(0 run now, 2 done before)" in proc.stderr, (module, proc.stderr[-800:])
+
+    path = copy / BLOCK_COMPUTING[0]
+    path.write_text(path.read_text() + "\n\ndef an_unused_function():\n    return 'nothing calls this'\n")
+    again = run("--recompute-stale")
+    assert again.returncode == 0 and "8 blocks to run" in again.stderr, again.stderr[-2000:]
+    (new_folder,) = out.glob("blocks/*")
+    assert new_folder != folder and new_folder.name.split("_")[0] == folder.name.split("_")[0]
+    assert len(list(new_folder.glob("b*.npz"))) == 8
