@@ -1,0 +1,309 @@
+"""The generated tables of docs/RESULTS.md and README's headline, made from the per-job CSVs of
+docs/results/ (scripts/export_results.py) so that text and data cannot drift apart.
+
+    python scripts/results_tables.py           # rewrite every generated block in place
+    python scripts/results_tables.py --check   # exit 1, naming the blocks that differ
+
+A generated block sits between ``<!-- generated: NAME -->`` and ``<!-- /generated -->`` in a
+Markdown file; NAME is a key of :data:`BLOCKS`, whose spec names the CSVs, the rows and the
+metrics. Everything a block shows is computed here from its CSVs, by one rule each:
+
+* per shape: the mean over its seeds' ok jobs (a seed's NaN skipped);
+* a row's statistic over the shapes with a value: mean, median; a metric that is NaN for some
+  shapes (ECD of a prediction without sharp-edge points, or a value the edge search could not make)
+  is taken over the others, and the cell counts the rest as "(N NaN)";
+* the 95% interval: the percentile bootstrap of the mean over the shapes
+  (:func:`reports.significance.bootstrap_mean_ci`, 2,000 resamples, seed 0);
+* scales and better directions: the default metric preset's (CD x1e3, ECD x1e2;
+  :func:`foundation.metrics.presets.MetricPreset.headline_metrics`); faces in thousands;
+* rounding: Python's format to the digits shown (CD and ECD 2 decimals, the others 3);
+* bold: the best mean of a column and every row not significantly worse than it (paired Wilcoxon
+  over the shapes both have, p < 0.05: :func:`reports.significance.tied_with_best`), as in every
+  table the runs write;
+* paired: for two rows, the shapes where each is better (ties and NaN counted in neither) and the
+  two-sided Wilcoxon p over the shapes both have (:func:`reports.significance.paired_wilcoxon`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from foundation.metrics.presets import PRESETS  # noqa: E402
+from reports.significance import against_best, bootstrap_mean_ci, paired_wilcoxon, tied_with_best  # noqa: E402
+
+RESULTS = REPO / "docs" / "results"
+#: The files whose generated blocks this script owns.
+DOCUMENTS = (REPO / "docs" / "RESULTS.md", REPO / "README.md")
+HEADLINE = {m.column: m for m in PRESETS["default"].headline_metrics()}
+#: Display name, scale and decimals of each metric a table can show.
+METRICS = {**{k: (m.name, m.scale, 2 if m.scale != 1 else 3) for k, m in HEADLINE.items()},
+           "n_faces": ("faces", 1e-3, 0)}
+LOWER_IS_BETTER = {k for k, m in HEADLINE.items() if m.lower_is_better} | {"n_faces"}
+BLOCK = re.compile(r"(<!-- generated: (?P<name>[\w.-]+) -->\n)(?P<body>.*?)(<!-- /generated -->)", re.S)
+
+
+@dataclass(frozen=True)
+class Row:
+    """A table row: the jobs of ``csv`` (a file of docs/results/) whose columns equal ``where``."""
+
+    label: str
+    csv: str
+    where: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Summary:
+    """Rows x metrics: each cell the mean (and median: ``medians``) over the shapes, with the
+    interval of the mean for the metrics of ``intervals``."""
+
+    head: str
+    rows: tuple[Row, ...]
+    metrics: tuple[str, ...]
+    medians: tuple[str, ...] = ("cd", "ecd", "ef1")
+    intervals: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Paired:
+    """Pairs of rows x metrics: where each is better, and the paired p."""
+
+    pairs: tuple[tuple[Row, Row], ...]
+    metrics: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Headline:
+    """A sentence whose numbers come from the CSVs: each ``{NAME}`` of ``text`` is the number
+    :func:`facts` of ``rows`` names so."""
+
+    text: str
+    rows: tuple[Row, ...]
+
+
+@lru_cache(maxsize=None)
+def _csv(name: str) -> pd.DataFrame:
+    return pd.read_csv(RESULTS / name, keep_default_na=False, na_values=[""], dtype={"exact": str})
+
+
+def per_shape(row: Row) -> pd.DataFrame:
+    """Shapes x metrics of ``row``: each shape's mean over its seeds' ok jobs (NaN skipped)."""
+    jobs = _csv(row.csv)
+    keep = np.ones(len(jobs), bool)
+    for column, value in row.where.items():
+        keep &= jobs[column].astype(str).to_numpy() == str(value)
+    if "status" in jobs:
+        failed = jobs[keep & (jobs["status"] != "ok").to_numpy()]
+        if len(failed):
+            raise ValueError(f"{row.csv} {row.where}: {len(failed)} failed jobs; a table needs every job ok")
+    chosen = jobs[keep]
+    if chosen.empty:
+        raise ValueError(f"{row.csv}: no job with {row.where}")
+    columns = [c for c in METRICS if c in chosen]
+    return chosen.groupby("shape")[columns].mean()
+
+
+def _number(value: float, metric: str) -> str:
+    _, scale, digits = METRICS[metric]
+    if not np.isfinite(value):
+        return "–"
+    if metric == "n_faces":
+        return f"{value * scale:.0f}k" if value * scale >= 10 else f"{value * scale:.1f}k"
+    return f"{value * scale:.{digits}f}"
+
+
+def p_text(p: float) -> str:
+    """A p value: two significant digits from 0.01 on, one below ('3e-6')."""
+    if not np.isfinite(p):
+        return "–"
+    if p >= 0.01:
+        return f"{p:.2g}"
+    mantissa, exponent = f"{p:.0e}".split("e")
+    return f"{mantissa}e{int(exponent)}"
+
+
+def _cell(values: pd.Series, metric: str, summary: Summary) -> str:
+    finite = values.dropna()
+    text = _number(finite.mean(), metric)
+    if metric in summary.medians:
+        text += f" / {_number(finite.median(), metric)}"
+    if metric in summary.intervals:
+        low, high = bootstrap_mean_ci(finite.to_numpy())
+        text += f" [{_number(low, metric)}, {_number(high, metric)}]"
+    if len(finite) < len(values):
+        text += f" ({len(values) - len(finite)} NaN)"
+    return text
+
+
+def render_summary(summary: Summary) -> str:
+    frames = [per_shape(row) for row in summary.rows]
+    shapes = sorted(set().union(*(f.index for f in frames)))
+    cells = [[row.label] for row in summary.rows]
+    for metric in summary.metrics:
+        matrix = np.array([f[metric].reindex(shapes).to_numpy(dtype=float) for f in frames])
+        means = np.array([np.nanmean(m) if np.isfinite(m).any() else np.nan for m in matrix])
+        lower = metric in LOWER_IS_BETTER
+        if metric == "n_faces" or not np.isfinite(means).any():
+            bold = [False] * len(means)
+        else:
+            best = int(np.nanargmin(means) if lower else np.nanargmax(means))
+            _, _, worse = against_best(matrix, best, lower)
+            bold, _ = tied_with_best(means, worse, lower)
+        for i, f in enumerate(frames):
+            text = _cell(f[metric], metric, summary)
+            cells[i].append(f"**{text}**" if bold[i] else text)
+    head = [summary.head] + [METRICS[m][0] for m in summary.metrics]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    return "\n".join(lines + ["| " + " | ".join(c) + " |" for c in cells])
+
+
+def better_counts(a: Row, b: Row, metric: str) -> tuple[int, int, float, int]:
+    """(shapes where a is better, where b is, the two-sided paired Wilcoxon p, shapes both have)."""
+    x, y = per_shape(a)[metric], per_shape(b)[metric]
+    x, y = x.align(y, join="inner")
+    both = np.isfinite(x.to_numpy()) & np.isfinite(y.to_numpy())
+    d = (x - y).to_numpy()[both] * (1 if metric in LOWER_IS_BETTER else -1)
+    return int((d < 0).sum()), int((d > 0).sum()), paired_wilcoxon(x.to_numpy(), y.to_numpy()), int(both.sum())
+
+
+def render_paired(paired: Paired) -> str:
+    head = ["pair"] + [METRICS[m][0] for m in paired.metrics]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for a, b in paired.pairs:
+        cells = [f"{a.label} vs {b.label}"]
+        for metric in paired.metrics:
+            wins_a, wins_b, p, _ = better_counts(a, b, metric)
+            first, second = ((a.label, wins_a), (b.label, wins_b)) if wins_a >= wins_b else ((b.label, wins_b),
+                                                                                             (a.label, wins_a))
+            cells.append(f"{first[0]} {first[1]}, {second[0]} {second[1]} (p = {p_text(p)})")
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def facts(rows: tuple[Row, ...]) -> dict[str, str]:
+    """Named numbers of ``rows`` for a sentence: ``LABEL.METRIC`` (the mean), ``shapes`` (of the
+    first row), and for each pair of rows ``A>B.METRIC`` (the shapes where A is better)."""
+    out = {"shapes": str(len(per_shape(rows[0])))}
+    for row in rows:
+        frame = per_shape(row)
+        for metric in METRICS:
+            if metric in frame:
+                out[f"{row.label}.{metric}"] = _number(frame[metric].mean(), metric)
+    for a in rows:
+        for b in rows:
+            if a is not b:
+                for metric in METRICS:
+                    if metric in per_shape(a) and metric in per_shape(b) and metric != "n_faces":
+                        out[f"{a.label}>{b.label}.{metric}"] = str(better_counts(a, b, metric)[0])
+    return out
+
+
+def render(spec) -> str:
+    if isinstance(spec, Summary):
+        return render_summary(spec)
+    if isinstance(spec, Paired):
+        return render_paired(spec)
+    numbers = facts(spec.rows)
+    return re.sub(r"\{([^{}]+)\}", lambda m: numbers[m[1]], spec.text)
+
+
+UNSEEN12 = "sals-ndc-unseen12-encode.csv"
+UNSEEN12_ORACLE = "sals-ndc-unseen12-oracle.csv"
+UNSEEN12_PARTS = "sals-ndc-unseen12-decompose.csv"
+UNSEEN93 = "abc-unseen93-encode.csv"
+PAPER50 = "paper-abc50-encode.csv"
+PAPER50_ORACLE = "paper-abc50-oracle.csv"
+
+
+def _rows(csv: str, *methods: str, **where) -> tuple[Row, ...]:
+    return tuple(Row(m, csv, {"method": m, **where}) for m in methods)
+
+
+S93 = _rows(UNSEEN93, "sals", "sals-ndc", "sdf", "sdf-ndc")
+O50 = _rows(PAPER50_ORACLE, "sals", "sdf-ndc")
+P50 = _rows(PAPER50, "sals", "sdf", "sdf-ndc")
+#: Every generated block: its name in the documents -> what it shows.
+BLOCKS = {
+    "unseen12-neural": Summary("12 unseen parts", _rows(UNSEEN12, "sals", "sals-ndc", "sdf", "sdf-ndc"),
+                               ("cd", "ecd", "ef1", "nc", "f1_005", "n_faces")),
+    "unseen12-decompose": Summary(
+        "`sals-ndc`, exact components",
+        (Row("sals (fitted flags, for reference)", UNSEEN12, {"method": "sals"}),
+         Row("none (learned flags)", UNSEEN12, {"method": "sals-ndc"}),
+         *(Row(label, UNSEEN12_PARTS, {"method": "sals-ndc", "exact": exact}) for label, exact in (
+             ("flags", "flags"), ("s", "s"), ("normals", "normals"), ("s, normals", "s+normals"),
+             ("flags, normals", "flags+normals"), ("flags, s", "flags+s"),
+             ("every component exact (= oracle)", "flags+s+normals")))),
+        ("cd", "ecd", "ef1", "n_faces"), medians=("ecd", "ef1")),
+    "unseen12-paired": Paired(tuple((Row(a, UNSEEN12, {"method": a}), Row(b, UNSEEN12, {"method": b})) for a, b in (
+        ("sals-ndc", "sals"), ("sdf-ndc", "sals-ndc"), ("sdf-ndc", "sals"))), ("cd", "ecd", "ef1", "nc")),
+    "unseen12-oracle": Summary("12 unseen parts, oracle", _rows(UNSEEN12_ORACLE, "sals", "sals-ndc", "sdf-ndc"),
+                               ("cd", "ecd", "ef1", "nc", "n_faces")),
+    "unseen93-neural": Summary("93 parts", S93, ("cd", "nc", "f1_005", "ecd", "ef1"), intervals=("cd", "ef1")),
+    "unseen93-paired": Paired(((S93[3], S93[0]), (S93[0], S93[2]), (S93[1], S93[0]), (S93[3], S93[1])),
+                              ("cd", "ecd", "ef1")),
+    "paper50-paired": Paired(((P50[2], P50[0]), (P50[0], P50[1])), ("cd", "ecd", "ef1")),
+    "headline": Headline(
+        "at the `cpu` budget (3,000 steps, about a minute of fitting per part on one CPU core) on the\n"
+        "{shapes} ABC parts no published network was trained on, **SDF + NDC** (a fitted SDF extracted by Neural\n"
+        "Dual Contouring's published network) beats SALS + E-DC on ECD and EF1 on {sdf-ndc>sals.ecd} and\n"
+        "{sdf-ndc>sals.ef1} of {shapes} parts (SALS on {sals>sdf-ndc.ecd} and {sals>sdf-ndc.ef1}; mean EF1 {sdf-ndc.ef1} against\n"
+        "{sals.ef1}). SALS leads marching cubes on the same fitted SDF (EF1, {sals>sdf.ef1} of {shapes}); with learned flags\n"
+        "on the same SALS fit (`sals-ndc`, EF1 {sals-ndc.ef1}) SDF + NDC still leads on {sdf-ndc>sals-ndc.ef1} of {shapes}: the\n"
+        "gap is in SALS's fitted flags and normals, not only its extractor.\n", S93),
+    "headline-oracle": Headline(
+        "With exact fields (oracle, the paper's {shapes} parts) SALS + E-DC against SDF + NDC: EF1 better on\n"
+        "{sals>sdf-ndc.ef1} parts and worse on {sdf-ndc>sals.ef1} (mean {sals.ef1} against {sdf-ndc.ef1}), ECD better on\n"
+        "{sals>sdf-ndc.ecd} and worse on {sdf-ndc>sals.ecd} (mean x1e2 {sals.ecd} against {sdf-ndc.ecd}).\n", O50),
+    "headline-paper50": Headline(
+        "The paper's own {shapes} parts agree (EF1: SDF + NDC better on {sdf-ndc>sals.ef1}, SALS on {sals>sdf-ndc.ef1}).\n",
+        P50),
+}
+
+
+def update(text: str, where: str = "") -> tuple[str, list[str]]:
+    """``text`` with every generated block re-made, and the names of the blocks that changed. An
+    unknown block name raises ValueError."""
+    changed = []
+
+    def fill(match: re.Match) -> str:
+        name = match["name"]
+        if name not in BLOCKS:
+            raise ValueError(f"{where}: unknown generated block '{name}'; known: {', '.join(BLOCKS)}")
+        body = render(BLOCKS[name])
+        body = body if body.endswith("\n") else body + "\n"
+        if body != match["body"]:
+            changed.append(name)
+        return match.group(1) + body + match.group(4)
+
+    return BLOCK.sub(fill, text), changed
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--check", action="store_true", help="write nothing; exit 1 when a block differs")
+    args = parser.parse_args(argv)
+    stale = []
+    for path in DOCUMENTS:
+        text = path.read_text(encoding="utf-8")
+        new, changed = update(text, str(path))
+        stale += [f"{path.relative_to(REPO)}: {name}" for name in changed]
+        if changed and not args.check:
+            path.write_text(new, encoding="utf-8")
+    if stale:
+        print(("differs from its CSVs: " if args.check else "re-made: ") + "; ".join(stale))
+    return 1 if stale and args.check else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,83 @@
+"""scripts/results_tables.py: the generated blocks of docs/RESULTS.md and README equal what their
+CSVs give (the drift test), and the rules that make them, on a hand-built CSV."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from tests.scripts import load_script
+
+script = load_script("results_tables")
+
+
+def test_every_generated_block_equals_what_its_csvs_give():
+    """Text and data cannot drift: re-making every block of RESULTS.md and README changes nothing
+    (after an intended change of a CSV or a spec: python scripts/results_tables.py)."""
+    names = []
+    for path in script.DOCUMENTS:
+        text = path.read_text(encoding="utf-8")
+        new, changed = script.update(text, str(path))
+        assert not changed, f"{path.name}: blocks that differ from their CSVs: {changed}"
+        assert new == text
+        names += [m["name"] for m in script.BLOCK.finditer(text)]
+    assert sorted(names) == sorted(script.BLOCKS)  # every spec is shown, each once
+
+
+@pytest.fixture
+def hand_csv(tmp_path, monkeypatch):
+    """Four shapes, two methods; 'b' has a NaN ECD on shape s3 and loses on every shape."""
+    jobs = pd.DataFrame({"shape": [f"s{i}" for i in range(4)] * 2, "method": ["a"] * 4 + ["b"] * 4,
+                         "seed": 0, "status": "ok",
+                         "cd": [1e-3, 2e-3, 3e-3, 4e-3, 2e-3, 3e-3, 4e-3, 9e-3],
+                         "ecd": [0.01, 0.02, 0.03, 0.04, 0.02, 0.03, 0.05, np.nan],
+                         "ef1": [0.9, 0.8, 0.7, 0.6, 0.5, 0.5, 0.5, 0.5],
+                         "n_faces": [1000, 3000, 5000, 7000, 20000, 20000, 20000, 20000]})
+    jobs.to_csv(tmp_path / "hand.csv", index=False)
+    monkeypatch.setattr(script, "RESULTS", tmp_path)
+    script._csv.cache_clear()
+    yield [script.Row(m, "hand.csv", {"method": m}) for m in ("a", "b")]
+    script._csv.cache_clear()
+
+
+def test_a_summary_is_mean_median_with_nan_counted_and_bold_by_the_paired_test(hand_csv):
+    table = script.render(script.Summary("rows", tuple(hand_csv), ("cd", "ecd", "ef1", "n_faces"),
+                                         intervals=("ef1",)))
+    lines = table.splitlines()
+    assert lines[0] == "| rows | CD | ECD | EF1 | faces |"
+    a, b = (line.split(" | ") for line in lines[2:])
+    # CD x1e3: a mean 2.50, median 2.50; b mean 4.50, median 3.50. Four pairs cannot reach p < 0.05
+    # (two-sided, smallest p 2 / 2^4), so b ties with the best: both bold.
+    assert a[1] == "**2.50 / 2.50**" and b[1] == "**4.50 / 3.50**"
+    # ECD x1e2: b over its 3 finite shapes (2, 3, 5), the NaN counted
+    assert a[2] == "**2.50 / 2.50**" and b[2] == "**3.33 / 3.00 (1 NaN)**"
+    low, high = script.bootstrap_mean_ci(np.array([0.9, 0.8, 0.7, 0.6]))
+    assert a[3] == f"**0.750 / 0.750 [{low:.3f}, {high:.3f}]**"
+    assert a[4] == "4.0k |" and b[4] == "20k |"  # faces: thousands, never bold
+
+
+def test_paired_counts_the_shapes_each_wins_and_the_two_sided_p(hand_csv):
+    a, b = hand_csv
+    assert script.better_counts(a, b, "cd")[:2] == (4, 0)
+    assert script.better_counts(a, b, "ecd")[1:] == (0, script.paired_wilcoxon([0.01, 0.02, 0.03],
+                                                                              [0.02, 0.03, 0.05]), 3)
+    (line,) = script.render(script.Paired(((b, a),), ("ef1",))).splitlines()[2:]
+    assert line == f"| b vs a | a 4, b 0 (p = {script.p_text(script.paired_wilcoxon([.9, .8, .7, .6], [.5] * 4))}) |"
+    sentence = script.render(script.Headline("{a>b.ef1} of {shapes}, mean {a.ef1} against {b.ef1}", tuple(hand_csv)))
+    assert sentence == "4 of 4, mean 0.750 against 0.500"
+
+
+def test_p_values_read_by_one_rule():
+    assert [script.p_text(p) for p in (0.5, 0.0123, 0.00098, 3.2e-6, np.nan)] == ["0.5", "0.012", "1e-3", "3e-6", "–"]
+
+
+def test_failed_jobs_and_unknown_blocks_are_refused(hand_csv, tmp_path):
+    jobs = pd.read_csv(tmp_path / "hand.csv")
+    jobs.loc[0, "status"] = "failed"
+    jobs.to_csv(tmp_path / "hand.csv", index=False)
+    script._csv.cache_clear()
+    with pytest.raises(ValueError, match="1 failed jobs"):
+        script.per_shape(hand_csv[0])
+    with pytest.raises(ValueError, match="unknown generated block 'nope'"):
+        script.update("<!-- generated: nope -->\nx\n<!-- /generated -->", "doc.md")
