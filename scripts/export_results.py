@@ -18,6 +18,10 @@ same table computed at a later commit); a job already in it (the same shape, met
 budget and input) is refused, naming it. With ``--replace-failed``, a job the CSV holds as failed and the runs hold as
 ``ok`` (re-run after a fix, at the commit given) replaces it; every other repeat is still refused.
 
+``--cost`` adds what each job cost and on which grid: :data:`COST_COLUMNS` (``grid``, the seconds
+of its stages and in all, and ``peak_rss_mib``, the peak resident memory of its worker while it ran,
+from the job's info in results.db).
+
 ``--components`` exports a ``--decompose`` run's extractions instead (its components.csv): one row
 per job and set of exact components, columns :data:`COMPONENT_COLUMNS` (``exact``: the components
 taken from the exact field, e.g. ``flags+normals``).
@@ -34,6 +38,8 @@ import pandas as pd
 
 COLUMNS = ["shape", "method", "seed", "mode", "budget", "input", "cd", "nc", "f1_005", "f1_01", "ecd", "ef1",
            "n_faces", "status", "error", "seen_in_training", "commit"]
+
+COST_COLUMNS = ["grid", "fit_s", "query_s", "extract_s", "metrics_s", "total_s", "peak_rss_mib"]
 
 COMPONENT_COLUMNS = ["shape", "method", "seed", "exact", "cd", "nc", "f1_005", "f1_01", "ecd", "ef1", "n_faces",
                      "extract_s", "commit"]
@@ -57,8 +63,18 @@ def budget_label(budget, budget_params: dict) -> str | None:
     return " ".join([str(budget), *(f"{k}={v}" for k, v in sorted(budget_params.items()))])
 
 
-def job_rows(run_dir: Path, commit: str) -> pd.DataFrame:
-    """The jobs of one run directory (its results.csv) in :data:`COLUMNS`."""
+def peak_memory(run_dir: Path) -> pd.Series:
+    """Each job's ``peak_rss_mib`` (from its info in results.db) by its key, ``config_hash``."""
+    import sqlite3
+
+    with sqlite3.connect(f"file:{run_dir / 'results.db'}?mode=ro", uri=True) as con:
+        rows = con.execute("SELECT config_hash, info FROM jobs").fetchall()
+    return pd.Series({key: json.loads(info or "{}").get("peak_rss_mib") for key, info in rows}, dtype=float)
+
+
+def job_rows(run_dir: Path, commit: str, cost: bool = False) -> pd.DataFrame:
+    """The jobs of one run directory (its results.csv) in :data:`COLUMNS` (and :data:`COST_COLUMNS`
+    before ``commit`` with ``cost``)."""
     config = run_config(run_dir)
     frame = pd.read_csv(run_dir / "results.csv")
     frame["input"] = run_input(config)
@@ -66,7 +82,10 @@ def job_rows(run_dir: Path, commit: str) -> pd.DataFrame:
         changes = config.get("budget_params") or {}
         frame["budget"] = [budget_label(b, changes) for b in frame["budget"]]
     frame["commit"] = commit
-    return frame.reindex(columns=COLUMNS)
+    if not cost:
+        return frame.reindex(columns=COLUMNS)
+    frame["peak_rss_mib"] = frame["config_hash"].map(peak_memory(run_dir))
+    return frame.reindex(columns=COLUMNS[:-1] + COST_COLUMNS + COLUMNS[-1:])
 
 
 def component_rows(run_dir: Path, commit: str) -> pd.DataFrame:
@@ -81,6 +100,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("runs", nargs="+", type=Path, help="finished run directories")
     parser.add_argument("--commit", required=True, help="the commit whose code computed the rows")
     parser.add_argument("--out", type=Path, required=True, help="the CSV to write")
+    parser.add_argument("--cost", action="store_true",
+                        help="add each job's grid, seconds and peak memory (COST_COLUMNS)")
     parser.add_argument("--components", action="store_true",
                         help="export the runs' --decompose extractions (components.csv) instead of their jobs")
     parser.add_argument("--append", action="store_true",
@@ -92,21 +113,21 @@ def main(argv: list[str] | None = None) -> int:
         print("export_results: --replace-failed needs --append and jobs, not --components (it replaces failed jobs "
               "of an existing CSV)", file=sys.stderr)
         return 2
-    table_file, rows = ("components.csv", component_rows) if args.components else ("results.csv", job_rows)
+    table_file = "components.csv" if args.components else "results.csv"
     frames = []
     for run in args.runs:
         if not (run / table_file).is_file():
             print(f"export_results: {run} has no {table_file} (run `run_benchmark.py report {run}` first"
                   + (", on a --decompose run" if args.components else "") + ")", file=sys.stderr)
             return 2
-        frames.append(rows(run, args.commit))
+        frames.append(component_rows(run, args.commit) if args.components else job_rows(run, args.commit, args.cost))
     keys = ["method", "shape", "seed"] + (["exact"] if args.components else [])
     if args.append:
         if not args.out.is_file():
             print(f"export_results: --append: {args.out} does not exist", file=sys.stderr)
             return 2
         frames.insert(0, pd.read_csv(args.out))
-    job = keys + ([] if args.components else ["mode", "budget", "input"])
+    job = keys + ([] if args.components else ["mode", "budget", "input"] + (["grid"] if args.cost else []))
     replaced = 0
     if args.replace_failed:
         held, new = frames[0], pd.concat(frames[1:], ignore_index=True)

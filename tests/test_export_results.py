@@ -106,3 +106,24 @@ def test_replace_failed_puts_an_ok_rerun_in_place_of_the_failed_job_only(tmp_pat
     table = pd.read_csv(out)
     assert list(zip(table["shape"], table["status"], table["cd"], table["commit"])) == [
         ("a", "ok", 0.002, "b"), ("b", "ok", 0.004, "a")]
+
+
+def test_cost_adds_the_grid_seconds_and_peak_memory_of_each_job(tmp_path):
+    """--cost: a job's grid and stage seconds from results.csv, its worker's peak memory from its
+    info in results.db; the same job at two grids is two rows."""
+    import sqlite3
+
+    script = load_script("export_results")
+    rows = [{"shape": "a", "method": "sdf", "seed": 0, "mode": "oracle", "status": "ok", "grid": N, "query_s": 1.0,
+             "extract_s": 0.5 * N, "total_s": 3.0, "config_hash": f"k{N}"} for N in (64, 128)]
+    run = _run(tmp_path / "run", "encode", "uniform", rows)
+    with sqlite3.connect(run / "results.db") as con:
+        con.execute("CREATE TABLE jobs (config_hash TEXT, info TEXT)")
+        con.executemany("INSERT INTO jobs VALUES (?, ?)", [("k64", json.dumps({"peak_rss_mib": 512.5})),
+                                                           ("k128", json.dumps({}))])
+    out = tmp_path / "out.csv"
+    assert script.main([str(run), "--cost", "--commit", "c", "--out", str(out)]) == 0
+    table = pd.read_csv(out)
+    assert list(table.columns) == script.COLUMNS[:-1] + script.COST_COLUMNS + ["commit"]
+    assert list(table["grid"]) == [64, 128] and list(table["extract_s"]) == [32.0, 64.0]
+    assert table["peak_rss_mib"].iloc[0] == 512.5 and np.isnan(table["peak_rss_mib"].iloc[1])
