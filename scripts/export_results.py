@@ -22,6 +22,10 @@ budget and input) is refused, naming it. With ``--replace-failed``, a job the CS
 of its stages and in all, and ``peak_rss_mib``, the peak resident memory of its worker while it ran,
 from the job's info in results.db).
 
+``--where COLUMN=VALUE`` (repeatable) keeps the runs' jobs with that value (``--where mode=oracle``);
+``--complete-shapes`` keeps the shapes that have every (method, mode, budget, input, grid) the kept jobs
+have anywhere, so that each table over the CSV is over the same shapes (a run stopped part-way).
+
 ``--components`` exports a ``--decompose`` run's extractions instead (its components.csv): one row
 per job and set of exact components, columns :data:`COMPONENT_COLUMNS` (``exact``: the components
 taken from the exact field, e.g. ``flags+normals``).
@@ -88,6 +92,16 @@ def job_rows(run_dir: Path, commit: str, cost: bool = False) -> pd.DataFrame:
     return frame.reindex(columns=COLUMNS[:-1] + COST_COLUMNS + COLUMNS[-1:])
 
 
+def complete_shapes(jobs: pd.DataFrame) -> pd.DataFrame:
+    """The jobs of the shapes that have every kind of job (method, mode, budget, input, grid, seed)
+    that any shape has."""
+    kind = [c for c in ("method", "mode", "budget", "input", "grid", "seed", "exact") if c in jobs]
+    kinds = jobs[kind].apply(lambda column: column.map(str)).agg("|".join, axis=1)
+    every = set(kinds)
+    complete = [shape for shape, ks in kinds.groupby(jobs["shape"]) if set(ks) == every]
+    return jobs[jobs["shape"].isin(complete)]
+
+
 def component_rows(run_dir: Path, commit: str) -> pd.DataFrame:
     """The decomposition rows of one run directory (its components.csv) in :data:`COMPONENT_COLUMNS`."""
     frame = pd.read_csv(run_dir / "components.csv")
@@ -102,6 +116,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, required=True, help="the CSV to write")
     parser.add_argument("--cost", action="store_true",
                         help="add each job's grid, seconds and peak memory (COST_COLUMNS)")
+    parser.add_argument("--where", action="append", default=[], metavar="COLUMN=VALUE",
+                        help="keep the runs' jobs whose COLUMN has VALUE (repeatable)")
+    parser.add_argument("--complete-shapes", action="store_true",
+                        help="keep the shapes that have every job kind the kept jobs have")
     parser.add_argument("--components", action="store_true",
                         help="export the runs' --decompose extractions (components.csv) instead of their jobs")
     parser.add_argument("--append", action="store_true",
@@ -121,6 +139,14 @@ def main(argv: list[str] | None = None) -> int:
                   + (", on a --decompose run" if args.components else "") + ")", file=sys.stderr)
             return 2
         frames.append(component_rows(run, args.commit) if args.components else job_rows(run, args.commit, args.cost))
+    for condition in args.where:
+        column, _, value = condition.partition("=")
+        if not value or any(column not in f for f in frames):
+            print(f"export_results: --where {condition}: expected COLUMN=VALUE with a column of the rows", file=sys.stderr)
+            return 2
+        frames = [f[f[column].map(str) == value] for f in frames]
+    if args.complete_shapes:
+        frames = [complete_shapes(pd.concat(frames, ignore_index=True))]
     keys = ["method", "shape", "seed"] + (["exact"] if args.components else [])
     if args.append:
         if not args.out.is_file():

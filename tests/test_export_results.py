@@ -127,3 +127,18 @@ def test_cost_adds_the_grid_seconds_and_peak_memory_of_each_job(tmp_path):
     assert list(table.columns) == script.COLUMNS[:-1] + script.COST_COLUMNS + ["commit"]
     assert list(table["grid"]) == [64, 128] and list(table["extract_s"]) == [32.0, 64.0]
     assert table["peak_rss_mib"].iloc[0] == 512.5 and np.isnan(table["peak_rss_mib"].iloc[1])
+
+
+def test_where_and_complete_shapes_keep_a_stopped_runs_finished_shapes(tmp_path):
+    script = load_script("export_results")
+    rows = [{"shape": s, "method": m, "seed": 0, "mode": mode, "status": "ok", "cd": 0.001}
+            for s, methods in (("a", ("sals", "sdf")), ("b", ("sals",))) for m in methods
+            for mode in ("neural", "oracle")]
+    run = _run(tmp_path / "run", "encode", "uniform", rows)
+    out = tmp_path / "out.csv"
+    assert script.main([str(run), "--where", "mode=oracle", "--complete-shapes", "--commit", "c", "--out",
+                        str(out)]) == 0
+    table = pd.read_csv(out)
+    assert set(table["mode"]) == {"oracle"} and list(zip(table["shape"], table["method"])) == [("a", "sals"),
+                                                                                                 ("a", "sdf")]
+    assert script.main([str(run), "--where", "nope", "--commit", "c", "--out", str(out)]) == 2
