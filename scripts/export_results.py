@@ -22,6 +22,9 @@ budget and input) is refused, naming it. With ``--replace-failed``, a job the CS
 of its stages and in all, and ``peak_rss_mib``, the peak resident memory of its worker while it ran,
 from the job's info in results.db).
 
+``--extra A,B`` adds those columns of results.csv (e.g. ``eprecision,erecall``: EF1's precision and
+recall) before ``commit``.
+
 ``--where COLUMN=VALUE`` (repeatable) keeps the runs' jobs with that value (``--where mode=oracle``);
 ``--complete-shapes`` keeps the shapes that have every (method, mode, budget, input, grid) the kept jobs
 have anywhere, so that each table over the CSV is over the same shapes (a run stopped part-way).
@@ -76,9 +79,9 @@ def peak_memory(run_dir: Path) -> pd.Series:
     return pd.Series({key: json.loads(info or "{}").get("peak_rss_mib") for key, info in rows}, dtype=float)
 
 
-def job_rows(run_dir: Path, commit: str, cost: bool = False) -> pd.DataFrame:
+def job_rows(run_dir: Path, commit: str, cost: bool = False, extra: tuple[str, ...] = ()) -> pd.DataFrame:
     """The jobs of one run directory (its results.csv) in :data:`COLUMNS` (and :data:`COST_COLUMNS`
-    before ``commit`` with ``cost``)."""
+    with ``cost``, then ``extra``, before ``commit``)."""
     config = run_config(run_dir)
     frame = pd.read_csv(run_dir / "results.csv")
     frame["input"] = run_input(config)
@@ -86,10 +89,12 @@ def job_rows(run_dir: Path, commit: str, cost: bool = False) -> pd.DataFrame:
         changes = config.get("budget_params") or {}
         frame["budget"] = [budget_label(b, changes) for b in frame["budget"]]
     frame["commit"] = commit
-    if not cost:
-        return frame.reindex(columns=COLUMNS)
-    frame["peak_rss_mib"] = frame["config_hash"].map(peak_memory(run_dir))
-    return frame.reindex(columns=COLUMNS[:-1] + COST_COLUMNS + COLUMNS[-1:])
+    if cost:
+        frame["peak_rss_mib"] = frame["config_hash"].map(peak_memory(run_dir))
+    missing = [c for c in extra if c not in frame]
+    if missing:
+        raise ValueError(f"{run_dir}: results.csv has no column {missing[0]}")
+    return frame.reindex(columns=COLUMNS[:-1] + (COST_COLUMNS if cost else []) + list(extra) + COLUMNS[-1:])
 
 
 def complete_shapes(jobs: pd.DataFrame) -> pd.DataFrame:
@@ -116,6 +121,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, required=True, help="the CSV to write")
     parser.add_argument("--cost", action="store_true",
                         help="add each job's grid, seconds and peak memory (COST_COLUMNS)")
+    parser.add_argument("--extra", default="", metavar="A,B", help="more columns of results.csv to keep")
     parser.add_argument("--where", action="append", default=[], metavar="COLUMN=VALUE",
                         help="keep the runs' jobs whose COLUMN has VALUE (repeatable)")
     parser.add_argument("--complete-shapes", action="store_true",
@@ -138,7 +144,13 @@ def main(argv: list[str] | None = None) -> int:
             print(f"export_results: {run} has no {table_file} (run `run_benchmark.py report {run}` first"
                   + (", on a --decompose run" if args.components else "") + ")", file=sys.stderr)
             return 2
-        frames.append(component_rows(run, args.commit) if args.components else job_rows(run, args.commit, args.cost))
+        extra = tuple(c for c in args.extra.split(",") if c)
+        try:
+            frames.append(component_rows(run, args.commit) if args.components
+                          else job_rows(run, args.commit, args.cost, extra))
+        except ValueError as exc:
+            print(f"export_results: --extra: {exc}", file=sys.stderr)
+            return 2
     for condition in args.where:
         column, _, value = condition.partition("=")
         if not value or any(column not in f for f in frames):

@@ -48,8 +48,11 @@ DOCUMENTS = (REPO / "docs" / "RESULTS.md", REPO / "README.md")
 HEADLINE = {m.column: m for m in PRESETS["default"].headline_metrics()}
 #: Display name, scale and decimals of each metric a table can show.
 METRICS = {**{k: (m.name, m.scale, 2 if m.scale != 1 else 3) for k, m in HEADLINE.items()},
-           "n_faces": ("faces", 1e-3, 0)}
-LOWER_IS_BETTER = {k for k, m in HEADLINE.items() if m.lower_is_better} | {"n_faces"}
+           "eprecision": ("EF1 precision", 1.0, 3), "erecall": ("EF1 recall", 1.0, 3),
+           "n_faces": ("faces", 1e-3, 0), "total_s": ("s", 1.0, 1), "peak_rss_mib": ("peak GiB", 1 / 1024, 2)}
+#: Columns that describe a job's cost, not its quality: never bold, never paired.
+COST = {"n_faces", "total_s", "peak_rss_mib"}
+LOWER_IS_BETTER = {k for k, m in HEADLINE.items() if m.lower_is_better} | COST
 BLOCK = re.compile(r"(<!-- generated: (?P<name>[\w.-]+) -->\n)(?P<body>.*?)(<!-- /generated -->)", re.S)
 
 
@@ -83,6 +86,28 @@ class Paired:
 
 
 @dataclass(frozen=True)
+class Across:
+    """One metric, rows x columns: a cell is the jobs of its row that also match its column's
+    ``where`` (e.g. a grid); ``stat`` 'mean / median' (bold by the paired test within a column),
+    'median' or 'max' (cost columns: never bold)."""
+
+    head: str
+    metric: str
+    rows: tuple[Row, ...]
+    columns: tuple[tuple[str, dict], ...]
+    stat: str = "mean / median"
+
+
+@dataclass(frozen=True)
+class PairedAcross:
+    """Pairs of rows x columns for one metric: where each is better, and the paired p, per column."""
+
+    metric: str
+    pairs: tuple[tuple[Row, Row], ...]
+    columns: tuple[tuple[str, dict], ...]
+
+
+@dataclass(frozen=True)
 class Headline:
     """A sentence whose numbers come from the CSVs: each ``{NAME}`` of ``text`` is the number
     :func:`facts` of ``rows`` names so."""
@@ -107,10 +132,12 @@ def per_shape(row: Row) -> pd.DataFrame:
         if len(failed):
             raise ValueError(f"{row.csv} {row.where}: {len(failed)} failed jobs; a table needs every job ok")
     chosen = jobs[keep]
-    if chosen.empty:
-        raise ValueError(f"{row.csv}: no job with {row.where}")
     columns = [c for c in METRICS if c in chosen]
     return chosen.groupby("shape")[columns].mean()
+
+
+def _within(row: Row, where: dict) -> Row:
+    return Row(row.label, row.csv, {**row.where, **where})
 
 
 def _number(value: float, metric: str) -> str:
@@ -133,6 +160,9 @@ def p_text(p: float) -> str:
 
 
 def _cell(values: pd.Series, metric: str, summary: Summary) -> str:
+    """The cell of ``values`` (one per shape); "–" where the row has no job (not run)."""
+    if values.empty:
+        return "–"
     finite = values.dropna()
     text = _number(finite.mean(), metric)
     if metric in summary.medians:
@@ -145,15 +175,21 @@ def _cell(values: pd.Series, metric: str, summary: Summary) -> str:
     return text
 
 
+def _some(frame: pd.DataFrame, row: Row) -> pd.DataFrame:
+    if frame.empty:
+        raise ValueError(f"{row.csv}: no job with {row.where}")
+    return frame
+
+
 def render_summary(summary: Summary) -> str:
-    frames = [per_shape(row) for row in summary.rows]
+    frames = [_some(per_shape(row), row) for row in summary.rows]
     shapes = sorted(set().union(*(f.index for f in frames)))
     cells = [[row.label] for row in summary.rows]
     for metric in summary.metrics:
         matrix = np.array([f[metric].reindex(shapes).to_numpy(dtype=float) for f in frames])
         means = np.array([np.nanmean(m) if np.isfinite(m).any() else np.nan for m in matrix])
         lower = metric in LOWER_IS_BETTER
-        if metric == "n_faces" or not np.isfinite(means).any():
+        if metric in COST or not np.isfinite(means).any():
             bold = [False] * len(means)
         else:
             best = int(np.nanargmin(means) if lower else np.nanargmax(means))
@@ -167,9 +203,58 @@ def render_summary(summary: Summary) -> str:
     return "\n".join(lines + ["| " + " | ".join(c) + " |" for c in cells])
 
 
+def render_across(across: Across) -> str:
+    metric = across.metric
+    head = [across.head] + [label for label, _ in across.columns]
+    cells = [[row.label] for row in across.rows]
+    for row in across.rows:  # a row may lack a column (not run there), never every column
+        if all(per_shape(_within(row, where)).empty for _, where in across.columns):
+            _some(per_shape(_within(row, across.columns[0][1])), _within(row, across.columns[0][1]))
+    for _, where in across.columns:
+        frames = [per_shape(_within(row, where)) for row in across.rows]
+        values = [f[metric] for f in frames]
+        if across.stat == "mean / median":
+            shapes = sorted(set().union(*(f.index for f in frames)))
+            matrix = np.array([v.reindex(shapes).to_numpy(dtype=float) for v in values])
+            means = np.array([np.nanmean(m) if np.isfinite(m).any() else np.nan for m in matrix])
+            lower = metric in LOWER_IS_BETTER
+            if np.isfinite(means).any():
+                best = int(np.nanargmin(means) if lower else np.nanargmax(means))
+                bold, _ = tied_with_best(means, against_best(matrix, best, lower)[2], lower)
+            else:
+                bold = [False] * len(means)
+            texts = [_cell(v, metric, Summary("", (), (metric,))) for v in values]
+        else:
+            bold = [False] * len(values)
+            texts = ["–" if v.empty else _number(float(v.median() if across.stat == "median" else v.max()), metric)
+                     for v in values]
+        for i, text in enumerate(texts):
+            cells[i].append(f"**{text}**" if bold[i] else text)
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    return "\n".join(lines + ["| " + " | ".join(c) + " |" for c in cells])
+
+
+def render_paired_across(paired: PairedAcross) -> str:
+    head = ["pair"] + [label for label, _ in paired.columns]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for a, b in paired.pairs:
+        cells = [f"{a.label} vs {b.label}"]
+        for _, where in paired.columns:
+            cells.append(_pair_text(_within(a, where), _within(b, where), paired.metric))
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _pair_text(a: Row, b: Row, metric: str) -> str:
+    wins_a, wins_b, p, _ = better_counts(a, b, metric)
+    first, second = ((a.label, wins_a), (b.label, wins_b)) if wins_a >= wins_b else ((b.label, wins_b),
+                                                                                     (a.label, wins_a))
+    return f"{first[0]} {first[1]}, {second[0]} {second[1]} (p = {p_text(p)})"
+
+
 def better_counts(a: Row, b: Row, metric: str) -> tuple[int, int, float, int]:
     """(shapes where a is better, where b is, the two-sided paired Wilcoxon p, shapes both have)."""
-    x, y = per_shape(a)[metric], per_shape(b)[metric]
+    x, y = _some(per_shape(a), a)[metric], _some(per_shape(b), b)[metric]
     x, y = x.align(y, join="inner")
     both = np.isfinite(x.to_numpy()) & np.isfinite(y.to_numpy())
     d = (x - y).to_numpy()[both] * (1 if metric in LOWER_IS_BETTER else -1)
@@ -182,10 +267,7 @@ def render_paired(paired: Paired) -> str:
     for a, b in paired.pairs:
         cells = [f"{a.label} vs {b.label}"]
         for metric in paired.metrics:
-            wins_a, wins_b, p, _ = better_counts(a, b, metric)
-            first, second = ((a.label, wins_a), (b.label, wins_b)) if wins_a >= wins_b else ((b.label, wins_b),
-                                                                                             (a.label, wins_a))
-            cells.append(f"{first[0]} {first[1]}, {second[0]} {second[1]} (p = {p_text(p)})")
+            cells.append(_pair_text(a, b, metric))
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -203,7 +285,7 @@ def facts(rows: tuple[Row, ...]) -> dict[str, str]:
         for b in rows:
             if a is not b:
                 for metric in METRICS:
-                    if metric in per_shape(a) and metric in per_shape(b) and metric != "n_faces":
+                    if metric in per_shape(a) and metric in per_shape(b) and metric not in COST:
                         out[f"{a.label}>{b.label}.{metric}"] = str(better_counts(a, b, metric)[0])
     return out
 
@@ -213,6 +295,10 @@ def render(spec) -> str:
         return render_summary(spec)
     if isinstance(spec, Paired):
         return render_paired(spec)
+    if isinstance(spec, Across):
+        return render_across(spec)
+    if isinstance(spec, PairedAcross):
+        return render_paired_across(spec)
     numbers = facts(spec.rows)
     return re.sub(r"\{([^{}]+)\}", lambda m: numbers[m[1]], spec.text)
 

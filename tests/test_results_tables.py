@@ -79,5 +79,33 @@ def test_failed_jobs_and_unknown_blocks_are_refused(hand_csv, tmp_path):
     script._csv.cache_clear()
     with pytest.raises(ValueError, match="1 failed jobs"):
         script.per_shape(hand_csv[0])
+    nobody = script.Row("c", "hand.csv", {"method": "c"})  # a mistyped method is refused, never an empty row
+    with pytest.raises(ValueError, match="no job with"):
+        script.render(script.Summary("rows", (nobody,), ("cd",)))
+    with pytest.raises(ValueError, match="no job with"):
+        script.render(script.Across("rows", "cd", (nobody,), (("all", {}),)))
     with pytest.raises(ValueError, match="unknown generated block 'nope'"):
         script.update("<!-- generated: nope -->\nx\n<!-- /generated -->", "doc.md")
+
+
+def test_across_columns_each_cell_is_its_rows_jobs_at_the_columns_value(tmp_path, monkeypatch):
+    """Two methods at two grids: 'a' better at 64 on every shape, 'b' at 128; peak memory by its max."""
+    rows = []
+    for N, (ea, eb) in ((64, (0.9, 0.5)), (128, (0.4, 0.8))):
+        for i in range(3):
+            rows += [{"shape": f"s{i}", "method": m, "grid": N, "status": "ok", "ef1": e + 0.01 * i,
+                      "peak_rss_mib": 1024.0 * (1 + i) * N / 64} for m, e in (("a", ea), ("b", eb))]
+    pd.DataFrame(rows).to_csv(tmp_path / "grids.csv", index=False)
+    monkeypatch.setattr(script, "RESULTS", tmp_path)
+    script._csv.cache_clear()
+    a, b = (script.Row(m, "grids.csv", {"method": m}) for m in ("a", "b"))
+    columns = (("64^3", {"grid": 64}), ("128^3", {"grid": 128}))
+    table = script.render(script.Across("method", "ef1", (a, b), columns)).splitlines()
+    assert table[0] == "| method | 64^3 | 128^3 |"
+    assert table[2] == "| a | **0.910 / 0.910** | **0.410 / 0.410** |"  # 3 pairs: no p < 0.05, both tie
+    assert table[3] == "| b | **0.510 / 0.510** | **0.810 / 0.810** |"
+    peak = script.render(script.Across("method", "peak_rss_mib", (a,), columns, stat="max")).splitlines()
+    assert peak[2] == "| a | 3.00 | 6.00 |"  # GiB, the largest job's
+    (pair,) = script.render(script.PairedAcross("ef1", ((a, b),), columns)).splitlines()[2:]
+    assert pair == "| a vs b | a 3, b 0 (p = 0.25) | b 3, a 0 (p = 0.25) |"
+    script._csv.cache_clear()
