@@ -45,24 +45,8 @@ MIN_PC_POINTS = 100
 DEFAULT_PC_POINTS = 40_000
 MIN_GRID = 8
 MIN_EVAL_POINTS = 1000
-#: Bytes per N^3 of the dense buffers of one job at grid N (see :func:`grid_memory_bytes`).
-GRID_BYTES_PER_POINT = 240
-
-
 class ConfigError(ValueError):
     """A bad option, path or name: one line, reported before any work starts."""
-
-
-def grid_memory_bytes(N: int) -> int:
-    """Estimated peak bytes of one job's dense grid buffers at resolution N.
-
-    Per grid edge (3 (N-1) N^2 ~ 3 N^3 edges): hit flag 1 B, s 4 B, normal 12 B, sparse-query
-    values 8 B, endpoint inputs 24 B, ids 8 B (~57 B, rounded to 64); per grid point: UDF 4 B,
-    gradient 12 B, SDF 4 B, occupancy 1 B, upsampled coarse values in float64 8 B and query masks
-    (~48 B). 3 x 64 + 48 = 240 B per N^3: 0.5 GB at 128, 4 GB at 256, 32 GB at 512. The true peak
-    of the lighter methods is lower; the estimate is a guard against requests that cannot fit.
-    """
-    return GRID_BYTES_PER_POINT * int(N) ** 3
 
 
 def machine_memory_bytes() -> int | None:
@@ -268,14 +252,11 @@ class RunConfig:
 
         if self.executor not in EXECUTORS:
             raise ConfigError(f"--executor: {EXECUTORS.unknown(self.executor)}")
-        memory = machine_memory_bytes()
-        if memory is not None and grid_memory_bytes(self.grid) > memory:
-            largest = int((memory / GRID_BYTES_PER_POINT) ** (1 / 3))
-            gib = grid_memory_bytes(self.grid) // 2**30  # an int: a grid of any size is one line, never an overflow
-            shown = f"{gib:,}" if gib < 2**64 else f"2^{gib.bit_length() - 1}"
-            raise ConfigError(f"--grid {self.grid} needs ~{shown} GiB of grid "
-                              f"buffers per job, more than this machine's {memory / 2**30:.0f} GiB; "
-                              f"use --grid <= {largest}")
+        from runner.memory_need import lightest_refusal
+
+        reason = lightest_refusal(self.grid, machine_memory_bytes())
+        if reason:
+            raise ConfigError(reason)
         if not self.seeds:
             raise ConfigError("--seed needs at least one value")
         if len(set(self.seeds)) != len(self.seeds) or len(set(self.methods)) != len(self.methods):

@@ -168,7 +168,7 @@ def run(plan: Plan, run_dir: RunDirectory, record: dict, executor=None) -> RunOu
     attempts = db.attempts()
     todo = [f for f in floors if f.key not in done_floors] + [j for j in jobs if j.key not in done_jobs]
     todo.sort(key=_schedule(plan, todo, _trained_networks(todo)))
-    executor = executor or make_executor(config, len(todo))
+    executor = executor or make_executor(config, plan.workers_that_fit(len(todo)))
     run_dir.write_config(session_record(record, run_dir.read_record(), execution_record(executor), len(todo)))
     total = len(floors) + len(jobs)
     skipped = total - len(todo)

@@ -460,8 +460,9 @@ EXECUTORS.register("ray", lambda config, tasks: RayExecutor(address=config.addre
 
 
 def make_executor(config, tasks: int):
-    """The executor a run config names (``auto``: :func:`auto_executor`) for ``tasks`` tasks, built
-    with its workers/address/retries/resources."""
+    """The executor a run config names (``auto``: :func:`auto_executor`) for ``tasks`` tasks at once at
+    most (the run's tasks, or as many as its memory needs let run together), built with its
+    workers/address/retries/resources."""
     return EXECUTORS.get(config.executor)(config, tasks)
 
 

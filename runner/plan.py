@@ -71,6 +71,14 @@ class Plan:
     training_set: dict[str, str] = field(default_factory=dict)
     rows: dict[str, RowKind] = field(default_factory=dict)
 
+    def workers_that_fit(self, workers: int) -> int:
+        """At most ``workers``, and no more jobs at once than this machine's memory holds by the
+        largest measured need of the run's jobs (:func:`runner.memory_need.workers_that_fit`)."""
+        from runner.config import machine_memory_bytes
+        from runner.memory_need import workers_that_fit
+
+        return workers_that_fit(job_kinds(self.methods, self.variants), machine_memory_bytes(), workers)
+
     def record(self) -> dict[str, Any]:
         """The resolved facts for config.json (JSON-ready)."""
         from methods.core.budgets import budget_values
@@ -169,12 +177,34 @@ def resolve(config: RunConfig) -> Plan:
                               f"clouds (a scan file carries its own sensors)")
     n = config.eval_points if config.eval_points is not None else preset.n_points
     sweep, variants = _variants(config, rows)
+    _check_memory(config, job_kinds(methods, variants))
     learned = any(row.learned for row in rows.values())
     train_dirs = _train_dirs(config, methods) if budgets and learned else ()
     from tasks.trained_networks import training_folders_digest
 
     return Plan(config, methods, params, budgets, preset, int(n), options, tuple(shapes), sweep, variants, train_dirs,
                 training_folders_digest(train_dirs), rows)
+
+
+def job_kinds(methods: tuple[str, ...], variants: tuple["Variant", ...]) -> set[tuple[str, str, str, int]]:
+    """The (task, method, mode, grid) of the run's jobs, what their memory needs depend on (the
+    score task reads no grid: none)."""
+    return {(v.config.task, m, v.config.mode, v.config.grid) for v in variants for m in methods
+            if v.config.task != "score"}
+
+
+def _check_memory(config: RunConfig, kinds: set[tuple[str, str, str, int]]) -> None:
+    """Refuse a run whose jobs cannot fit this machine's memory by the measured needs
+    (:func:`runner.memory_need.refusal`): each job alone, and with ``--executor process``, its
+    workers at once (the automatic executor runs as many as fit: :meth:`Plan.workers_that_fit`)."""
+    from runner.config import machine_memory_bytes
+    from runner.executors import physical_cores
+    from runner.memory_need import refusal
+
+    workers = int(config.workers or physical_cores()) if config.executor == "process" else 1
+    reason = refusal(kinds, machine_memory_bytes(), workers)
+    if reason:
+        raise ConfigError(reason)
 
 
 def _train_dirs(config: RunConfig, methods: tuple[str, ...]) -> tuple[str, ...]:

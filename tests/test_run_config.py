@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from runner.config import ConfigError, RunConfig, grid_memory_bytes, machine_memory_bytes
+from runner.config import ConfigError, RunConfig, machine_memory_bytes
 from runner.plan import resolve
 from tests.loader_fuzz import FLOATS, loads_or_refuses, mutated
 
@@ -53,12 +53,18 @@ def test_oracle_mode_has_no_budget():
     assert RunConfig(mode="neural", budget=None).budget == "cpu" == RunConfig().budget
 
 
-def test_grid_bound_comes_from_the_machine_memory():
+def test_a_grid_no_measured_job_can_fit_is_refused_by_the_config():
+    """The shipped measurements (runner/measured_memory.csv): a grid past the largest the lightest
+    measured job fits in this machine's memory is refused in one line; that grid itself is a config."""
+    from runner.memory_need import read_models
+
     memory = machine_memory_bytes()
-    assert memory is not None and grid_memory_bytes(128) < memory
-    too_big = int((memory / 240) ** (1 / 3)) + 1
-    with pytest.raises(ConfigError, match=r"GiB of grid buffers per job, more than this machine's"):
-        RunConfig(grid=too_big)
+    lightest = min(read_models().values(), key=lambda m: m.need_bytes(1024))
+    largest = lightest.largest_grid(memory)
+    assert RunConfig(grid=largest).grid == largest
+    with pytest.raises(ConfigError, match=rf"^--grid {largest + 1}: even the lightest measured job .* its largest "
+                                          rf"grid here is {largest}$"):
+        RunConfig(grid=largest + 1)
 
 
 def test_identity_diff_names_each_differing_setting():
