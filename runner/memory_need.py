@@ -135,7 +135,7 @@ def refusal(jobs: Iterable[tuple[str, str, str, int]], memory: float | None, wor
         if need > memory:
             largest = model.largest_grid(memory)
             return (f"--grid {N}: {method} ({mode}) needs ~{_gib(need)} GiB per job ({how}: {model.base_mib:.0f} MiB + "
-                    f"{model.bytes_per_point:.1f} B x N^3), more than this machine's {memory / 2**30:.0f} GiB; "
+                    f"{model.bytes_per_point:.1f} B x N^3), more than this machine's {memory / 2**30:.1f} GiB; "
                     f"its largest grid here is {largest}")
         needs.append((need, method, mode, N))
     if workers > 1 and needs:
@@ -143,7 +143,7 @@ def refusal(jobs: Iterable[tuple[str, str, str, int]], memory: float | None, wor
         if need * workers > memory:
             fit = max(1, int(memory // need))
             return (f"--grid {N}: {workers} workers of {method} ({mode}) need ~{_gib(need * workers)} GiB at once "
-                    f"(~{_gib(need)} GiB each, measured), more than this machine's {memory / 2**30:.0f} GiB; "
+                    f"(~{_gib(need)} GiB each, measured), more than this machine's {memory / 2**30:.1f} GiB; "
                     f"use --workers {fit}")
     return None
 
@@ -158,7 +158,7 @@ def lightest_refusal(N: int, memory: float | None, models: dict | None = None) -
     if lightest.need_bytes(N) <= memory:
         return None
     return (f"--grid {N}: even the lightest measured job ({lightest.method}, {lightest.mode}) needs "
-            f"~{_gib(lightest.need_bytes(N))} GiB, more than this machine's {memory / 2**30:.0f} GiB; "
+            f"~{_gib(lightest.need_bytes(N))} GiB, more than this machine's {memory / 2**30:.1f} GiB; "
             f"its largest grid here is {lightest.largest_grid(memory)}")
 
 

@@ -43,7 +43,7 @@ def test_a_grid_that_cannot_fit_is_refused_in_one_line_and_one_that_fits_is_admi
     line = refusal({("encode", "sals", "neural", 768)}, memory, 1, models)  # 0.5 + 25.3 GiB
     assert line.startswith("--grid 768: sals (neural) needs ~25.8 GiB per job (measured on grids 64 128 256")
     largest = int(((memory - 500 * MIB) / 60.0) ** (1 / 3))
-    assert line.endswith(f"more than this machine's 23 GiB; its largest grid here is {largest}") and "\n" not in line
+    assert line.endswith(f"more than this machine's 23.0 GiB; its largest grid here is {largest}") and "\n" not in line
     assert refusal({("encode", "sals", "neural", largest)}, memory, 1, models) is None
     assert refusal({("encode", "sals", "neural", largest + 1)}, memory, 1, models) is not None
 
