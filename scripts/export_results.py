@@ -20,10 +20,10 @@ budget and input) is refused, naming it. With ``--replace-failed``, a job the CS
 
 ``--cost`` adds what each job cost and on which grid: :data:`COST_COLUMNS` (``grid``, the seconds
 of its stages and in all, and ``peak_rss_mib``, the peak resident memory of its worker while it ran,
-from the job's info in results.db).
+from the job's info in results.db); with ``--components``, each row's grid.
 
 ``--extra A,B`` adds those columns of results.csv (e.g. ``eprecision,erecall``: EF1's precision and
-recall) before ``commit``.
+recall; ``sweep.KEY``: a sweep's value, which then tells its jobs apart) before ``commit``.
 
 ``--where COLUMN=VALUE`` (repeatable) keeps the runs' jobs with that value (``--where mode=oracle``);
 ``--complete-shapes`` keeps the shapes that have every (method, mode, budget, input, grid) the kept jobs
@@ -107,11 +107,16 @@ def complete_shapes(jobs: pd.DataFrame) -> pd.DataFrame:
     return jobs[jobs["shape"].isin(complete)]
 
 
-def component_rows(run_dir: Path, commit: str) -> pd.DataFrame:
-    """The decomposition rows of one run directory (its components.csv) in :data:`COMPONENT_COLUMNS`."""
+def component_rows(run_dir: Path, commit: str, cost: bool = False) -> pd.DataFrame:
+    """The decomposition rows of one run directory (its components.csv) in :data:`COMPONENT_COLUMNS`
+    (with ``cost``, the grid of each row's job before ``commit``, from results.csv)."""
     frame = pd.read_csv(run_dir / "components.csv")
     frame["commit"] = commit
-    return frame.reindex(columns=COMPONENT_COLUMNS)
+    if not cost:
+        return frame.reindex(columns=COMPONENT_COLUMNS)
+    jobs = pd.read_csv(run_dir / "results.csv").set_index("config_hash")["grid"]
+    frame["grid"] = frame["config_hash"].map(jobs)
+    return frame.reindex(columns=COMPONENT_COLUMNS[:-1] + ["grid"] + COMPONENT_COLUMNS[-1:])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -146,7 +151,7 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         extra = tuple(c for c in args.extra.split(",") if c)
         try:
-            frames.append(component_rows(run, args.commit) if args.components
+            frames.append(component_rows(run, args.commit, args.cost) if args.components
                           else job_rows(run, args.commit, args.cost, extra))
         except ValueError as exc:
             print(f"export_results: --extra: {exc}", file=sys.stderr)
@@ -159,13 +164,14 @@ def main(argv: list[str] | None = None) -> int:
         frames = [f[f[column].map(str) == value] for f in frames]
     if args.complete_shapes:
         frames = [complete_shapes(pd.concat(frames, ignore_index=True))]
-    keys = ["method", "shape", "seed"] + (["exact"] if args.components else [])
+    keys = ["method", "shape", "seed"] + (["exact"] + (["grid"] if args.cost else []) if args.components else [])
     if args.append:
         if not args.out.is_file():
             print(f"export_results: --append: {args.out} does not exist", file=sys.stderr)
             return 2
         frames.insert(0, pd.read_csv(args.out))
-    job = keys + ([] if args.components else ["mode", "budget", "input"] + (["grid"] if args.cost else []))
+    extra = [c for c in args.extra.split(",") if c]  # a sweep's columns (sweep.KEY) tell its jobs apart
+    job = keys + ([] if args.components else ["mode", "budget", "input"] + (["grid"] if args.cost else []) + extra)
     replaced = 0
     if args.replace_failed:
         held, new = frames[0], pd.concat(frames[1:], ignore_index=True)

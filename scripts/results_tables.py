@@ -50,8 +50,12 @@ HEADLINE = {m.column: m for m in PRESETS["default"].headline_metrics()}
 METRICS = {**{k: (m.name, m.scale, 2 if m.scale != 1 else 3) for k, m in HEADLINE.items()},
            "eprecision": ("EF1 precision", 1.0, 3), "erecall": ("EF1 recall", 1.0, 3),
            "n_faces": ("faces", 1e-3, 0), "total_s": ("s", 1.0, 1), "peak_rss_mib": ("peak GiB", 1 / 1024, 2)}
-#: Columns that describe a job's cost, not its quality: never bold, never paired.
-COST = {"n_faces", "total_s", "peak_rss_mib"}
+METRICS.update({"hit_edges": ("hit edges", 1.0, 0), "false_hit_edges": ("false hits", 1.0, 0),
+                "missed_edges": ("missed edges", 1.0, 0), "s_error_h": ("s error (h)", 1.0, 3),
+                "normal_error_deg": ("normal error (deg)", 1.0, 2)})
+#: Columns that describe a job's cost or a diagnosis, not its quality: never bold, never paired.
+COST = {"n_faces", "total_s", "peak_rss_mib", "hit_edges", "false_hit_edges", "missed_edges", "s_error_h",
+        "normal_error_deg"}
 LOWER_IS_BETTER = {k for k, m in HEADLINE.items() if m.lower_is_better} | COST
 BLOCK = re.compile(r"(<!-- generated: (?P<name>[\w.-]+) -->\n)(?P<body>.*?)(<!-- /generated -->)", re.S)
 
@@ -218,7 +222,7 @@ def render_across(across: Across) -> str:
             matrix = np.array([v.reindex(shapes).to_numpy(dtype=float) for v in values])
             means = np.array([np.nanmean(m) if np.isfinite(m).any() else np.nan for m in matrix])
             lower = metric in LOWER_IS_BETTER
-            if np.isfinite(means).any():
+            if metric not in COST and np.isfinite(means).any():
                 best = int(np.nanargmin(means) if lower else np.nanargmax(means))
                 bold, _ = tied_with_best(means, against_best(matrix, best, lower)[2], lower)
             else:
@@ -315,6 +319,14 @@ def _rows(csv: str, *methods: str, **where) -> tuple[Row, ...]:
     return tuple(Row(m, csv, {"method": m, **where}) for m in methods)
 
 
+RESOLUTION = "resolution-unseen.csv"
+RESOLUTION_ORACLE = "resolution-unseen-oracle.csv"
+RESOLUTION_PARTS = "resolution-decompose-sals.csv"
+RESOLUTION_JOBS = "resolution-decompose-sals-jobs.csv"
+GRID_ROWS = ("sals", "sals-ndc", "sdf", "sdf-ndc", "udf", "udf-dualmesh", "udf-ndc", "bof")
+GRIDS = tuple((f"{n}^3", {"grid": n}) for n in (64, 128, 256))
+GRIDS_512 = GRIDS + (("512^3 (4 parts)", {"grid": 512}),)
+RN = {m: Row(m, RESOLUTION, {"method": m}) for m in GRID_ROWS}
 S93 = _rows(UNSEEN93, "sals", "sals-ndc", "sdf", "sdf-ndc")
 O50 = _rows(PAPER50_ORACLE, "sals", "sdf-ndc")
 P50 = _rows(PAPER50, "sals", "sdf", "sdf-ndc")
@@ -339,6 +351,46 @@ BLOCKS = {
     "unseen93-paired": Paired(((S93[3], S93[0]), (S93[0], S93[2]), (S93[1], S93[0]), (S93[3], S93[1])),
                               ("cd", "ecd", "ef1")),
     "paper50-paired": Paired(((P50[2], P50[0]), (P50[0], P50[1])), ("cd", "ecd", "ef1")),
+    "resolution-ef1": Across("EF1, neural", "ef1", tuple(RN.values()), GRIDS_512),
+    "resolution-ecd": Across("ECD, neural", "ecd", tuple(RN.values()), GRIDS_512),
+    "resolution-cd": Across("CD, neural", "cd", tuple(RN.values()), GRIDS_512),
+    "resolution-precision": Across("EF1 precision / recall, neural", "eprecision", tuple(RN.values()), GRIDS),
+    "resolution-recall": Across("EF1 recall, neural", "erecall", tuple(RN.values()), GRIDS),
+    "resolution-paired": PairedAcross("ef1", ((RN["sals"], RN["sdf"]), (RN["sdf-ndc"], RN["sals"]),
+                                              (RN["sdf-ndc"], RN["sals-ndc"]), (RN["udf-dualmesh"], RN["sals"])), GRIDS),
+    "resolution-paired-cd": PairedAcross("cd", ((RN["sals"], RN["sdf"]), (RN["sdf-ndc"], RN["sals"])), GRIDS),
+    "resolution-oracle-ef1": Across("EF1, oracle", "ef1", _rows(RESOLUTION_ORACLE, *GRID_ROWS), GRIDS),
+    "resolution-oracle-precision": Across("EF1 precision, oracle", "eprecision", _rows(RESOLUTION_ORACLE, *GRID_ROWS),
+                                          GRIDS),
+    "resolution-faces": Across(
+        "E-DC face rule, oracle `sals`", "ef1",
+        tuple(Row(rule, "resolution-edc-faces-oracle.csv", {"sweep.sals.faces": rule})
+              for rule in ("fan4", "quad2", "fan4-adaptive")), GRIDS[1:]),
+    "resolution-threshold": Summary(
+        "`sals` at 256^3, o threshold",
+        (Row("0.3", "resolution-threshold-256.csv", {"sweep.sals.o_threshold": 0.3}),
+         Row("0.5 (the default)", RESOLUTION, {"method": "sals", "grid": 256}),
+         Row("0.7", "resolution-threshold-256.csv", {"sweep.sals.o_threshold": 0.7})),
+        ("cd", "ef1", "eprecision", "erecall", "n_faces")),
+    "resolution-decompose": Across(
+        "`sals`, exact components (6 parts)", "ef1",
+        (Row("none (the fitted field)", RESOLUTION_JOBS, {"method": "sals"}),
+         *(Row(label, RESOLUTION_PARTS, {"exact": exact}) for label, exact in (
+             ("flags", "flags"), ("s", "s"), ("normals", "normals"), ("flags, s", "flags+s"),
+             ("flags, normals", "flags+normals"), ("every component exact (= oracle)", "flags+s+normals")))),
+        GRIDS[1:]),
+    "resolution-decompose-cd": Across(
+        "`sals`, exact components (6 parts)", "cd",
+        (Row("none (the fitted field)", RESOLUTION_JOBS, {"method": "sals"}),
+         Row("flags", RESOLUTION_PARTS, {"exact": "flags"}),
+         Row("every component exact (= oracle)", RESOLUTION_PARTS, {"exact": "flags+s+normals"})), GRIDS[1:]),
+    "resolution-flags": Summary(
+        "`sals`'s fitted flags against the exact edges (6 parts)",
+        tuple(Row(label, RESOLUTION_JOBS, {"method": "sals", "grid": n}) for label, n in (("128^3", 128), ("256^3", 256))),
+        ("hit_edges", "false_hit_edges", "missed_edges", "s_error_h", "normal_error_deg"), medians=()),
+    "resolution-seconds": Across("median s per job (neural)", "total_s", tuple(RN.values()), GRIDS_512, stat="median"),
+    "resolution-peak": Across("largest peak GiB of a job (neural)", "peak_rss_mib", tuple(RN.values()), GRIDS_512,
+                              stat="max"),
     "headline": Headline(
         "at the `cpu` budget (3,000 steps, about a minute of fitting per part on one CPU core) on the\n"
         "{shapes} ABC parts no published network was trained on, **SDF + NDC** (a fitted SDF extracted by Neural\n"
@@ -351,6 +403,14 @@ BLOCKS = {
         "With exact fields (oracle, the paper's {shapes} parts) SALS + E-DC against SDF + NDC: EF1 better on\n"
         "{sals>sdf-ndc.ef1} parts and worse on {sdf-ndc>sals.ef1} (mean {sals.ef1} against {sdf-ndc.ef1}), ECD better on\n"
         "{sals>sdf-ndc.ecd} and worse on {sdf-ndc>sals.ecd} (mean x1e2 {sals.ecd} against {sdf-ndc.ecd}).\n", O50),
+    "headline-resolution": Headline(
+        "On 12 other unseen parts extracted from the same `cpu` fits at 64^3, 128^3 and 256^3, SDF + NDC leads SALS on\n"
+        "EF1 at every grid ({sdf-ndc@256>sals@256.ef1} of {shapes} at 256^3; mean {sdf-ndc@256.ef1} against {sals@256.ef1}),\n"
+        "while SALS's lead over marching cubes on the same fitted SDF (EF1 better on {sals@64>sdf@64.ef1} and\n"
+        "{sals@128>sdf@128.ef1} of {shapes} parts at 64^3 and 128^3) is gone at 256^3: MC better on {sdf@256>sals@256.ef1}\n"
+        "of {shapes} (mean EF1 {sdf@256.ef1} against {sals@256.ef1}; RESULTS 14).\n",
+        tuple(Row(f"{m}@{n}", RESOLUTION, {"method": m, "grid": n}) for n in (256, 128, 64)
+              for m in ("sals", "sdf", "sdf-ndc"))),
     "headline-paper50": Headline(
         "The paper's own {shapes} parts agree (EF1: SDF + NDC better on {sdf-ndc>sals.ef1}, SALS on {sals>sdf-ndc.ef1}).\n",
         P50),

@@ -74,3 +74,21 @@ def test_a_grid_no_job_can_fit_is_refused_whatever_the_methods():
     line = lightest_refusal(2048, 23 * GIB, models)
     assert line.startswith("--grid 2048: even the lightest measured job (sdf, oracle) needs ~160.3 GiB")
     assert lightest_refusal(10**4000, 23 * GIB, models).startswith("--grid 1")  # any size: one line, no overflow
+
+
+def test_a_run_is_refused_or_admitted_by_the_shipped_measurements(monkeypatch):
+    """The plan's guard on this project's own table, on a machine of 23.4 GiB: NDC's dense CNN at
+    512^3 is refused before any work in one line; sals and sdf at 512^3 are admitted, and the
+    automatic executor is held to the workers that fit."""
+    import runner.config as config_module
+    from runner.config import ConfigError, RunConfig
+    from runner.plan import resolve
+
+    monkeypatch.setattr(config_module, "machine_memory_bytes", lambda: int(23.4 * GIB))
+    base = dict(dataset="builtin", limit=1, grid=512)
+    with pytest.raises(ConfigError, match=r"^--grid 512: sdf-ndc \(oracle\) needs ~23\.7 GiB per job \(measured on grids"):
+        resolve(RunConfig(mode="oracle", methods=("sdf", "sdf-ndc"), **base))
+    plan = resolve(RunConfig(methods=("sals", "sdf"), **base))
+    assert plan.workers_that_fit(8) == 2  # ~8.9 GiB a sals job: two at once
+    with pytest.raises(ConfigError, match=r"3 workers of sals \(neural\) need .* use --workers 2$"):
+        resolve(RunConfig(methods=("sals",), executor="process", workers=3, **base))
