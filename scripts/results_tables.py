@@ -404,7 +404,7 @@ BLOCKS = {
         "{sals>sdf-ndc.ef1} parts and worse on {sdf-ndc>sals.ef1} (mean {sals.ef1} against {sdf-ndc.ef1}), ECD better on\n"
         "{sals>sdf-ndc.ecd} and worse on {sdf-ndc>sals.ecd} (mean x1e2 {sals.ecd} against {sdf-ndc.ecd}).\n", O50),
     "headline-resolution": Headline(
-        "On 12 other unseen parts extracted from the same `cpu` fits at 64^3, 128^3 and 256^3, SDF + NDC leads SALS on\n"
+        "With the `cpu` fits of 12 other unseen parts extracted at 64^3, 128^3 and 256^3, SDF + NDC leads SALS on\n"
         "EF1 at every grid ({sdf-ndc@256>sals@256.ef1} of {shapes} at 256^3; mean {sdf-ndc@256.ef1} against {sals@256.ef1}),\n"
         "while SALS's lead over marching cubes on the same fitted SDF (EF1 better on {sals@64>sdf@64.ef1} and\n"
         "{sals@128>sdf@128.ef1} of {shapes} parts at 64^3 and 128^3) is gone at 256^3: MC better on {sdf@256>sals@256.ef1}\n"
