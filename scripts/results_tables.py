@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import re
 import sys
+import textwrap
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -57,6 +58,8 @@ METRICS.update({"hit_edges": ("hit edges", 1.0, 0), "false_hit_edges": ("false h
 COST = {"n_faces", "total_s", "peak_rss_mib", "hit_edges", "false_hit_edges", "missed_edges", "s_error_h",
         "normal_error_deg"}
 LOWER_IS_BETTER = {k for k, m in HEADLINE.items() if m.lower_is_better} | COST
+#: Line width of a generated sentence (the documents' own).
+WIDTH = 100
 BLOCK = re.compile(r"(<!-- generated: (?P<name>[\w.-]+) -->\n)(?P<body>.*?)(<!-- /generated -->)", re.S)
 
 
@@ -114,7 +117,7 @@ class PairedAcross:
 @dataclass(frozen=True)
 class Headline:
     """A sentence whose numbers come from the CSVs: each ``{NAME}`` of ``text`` is the number
-    :func:`facts` of ``rows`` names so."""
+    :func:`fact` of ``rows`` names so; the text is wrapped at :data:`WIDTH`."""
 
     text: str
     rows: tuple[Row, ...]
@@ -211,11 +214,11 @@ def render_across(across: Across) -> str:
     metric = across.metric
     head = [across.head] + [label for label, _ in across.columns]
     cells = [[row.label] for row in across.rows]
-    for row in across.rows:  # a row may lack a column (not run there), never every column
-        if all(per_shape(_within(row, where)).empty for _, where in across.columns):
-            _some(per_shape(_within(row, across.columns[0][1])), _within(row, across.columns[0][1]))
-    for _, where in across.columns:
-        frames = [per_shape(_within(row, where)) for row in across.rows]
+    grid = [[per_shape(_within(row, where)) for row in across.rows] for _, where in across.columns]
+    for i, row in enumerate(across.rows):  # a row may lack a column (not run there), never every column
+        if all(column[i].empty for column in grid):
+            _some(grid[0][i], _within(row, across.columns[0][1]))
+    for frames in grid:
         values = [f[metric] for f in frames]
         if across.stat == "mean / median":
             shapes = sorted(set().union(*(f.index for f in frames)))
@@ -276,22 +279,17 @@ def render_paired(paired: Paired) -> str:
     return "\n".join(lines)
 
 
-def facts(rows: tuple[Row, ...]) -> dict[str, str]:
-    """Named numbers of ``rows`` for a sentence: ``LABEL.METRIC`` (the mean), ``shapes`` (of the
-    first row), and for each pair of rows ``A>B.METRIC`` (the shapes where A is better)."""
-    out = {"shapes": str(len(per_shape(rows[0])))}
-    for row in rows:
-        frame = per_shape(row)
-        for metric in METRICS:
-            if metric in frame:
-                out[f"{row.label}.{metric}"] = _number(frame[metric].mean(), metric)
-    for a in rows:
-        for b in rows:
-            if a is not b:
-                for metric in METRICS:
-                    if metric in per_shape(a) and metric in per_shape(b) and metric not in COST:
-                        out[f"{a.label}>{b.label}.{metric}"] = str(better_counts(a, b, metric)[0])
-    return out
+def fact(name: str, rows: tuple[Row, ...]) -> str:
+    """One named number of ``rows`` for a sentence: ``shapes`` (the first row's), ``LABEL.METRIC``
+    (the row's mean) or ``A>B.METRIC`` (the shapes where row A is better than row B)."""
+    if name == "shapes":
+        return str(len(per_shape(rows[0])))
+    by_label = {row.label: row for row in rows}
+    what, _, metric = name.rpartition(".")
+    if ">" in what:
+        a, b = what.split(">")
+        return str(better_counts(by_label[a], by_label[b], metric)[0])
+    return _number(_some(per_shape(by_label[what]), by_label[what])[metric].mean(), metric)
 
 
 def render(spec) -> str:
@@ -303,8 +301,8 @@ def render(spec) -> str:
         return render_across(spec)
     if isinstance(spec, PairedAcross):
         return render_paired_across(spec)
-    numbers = facts(spec.rows)
-    return re.sub(r"\{([^{}]+)\}", lambda m: numbers[m[1]], spec.text)
+    text = re.sub(r"\{([^{}]+)\}", lambda m: fact(m[1], spec.rows), spec.text)
+    return textwrap.fill(" ".join(text.split()), width=WIDTH, break_on_hyphens=False)
 
 
 UNSEEN12 = "sals-ndc-unseen12-encode.csv"
@@ -392,28 +390,23 @@ BLOCKS = {
     "resolution-peak": Across("largest peak GiB of a job (neural)", "peak_rss_mib", tuple(RN.values()), GRIDS_512,
                               stat="max"),
     "headline": Headline(
-        "at the `cpu` budget (3,000 steps, about a minute of fitting per part on one CPU core) on the\n"
-        "{shapes} ABC parts no published network was trained on, **SDF + NDC** (a fitted SDF extracted by Neural\n"
-        "Dual Contouring's published network) beats SALS + E-DC on ECD and EF1 on {sdf-ndc>sals.ecd} and\n"
-        "{sdf-ndc>sals.ef1} of {shapes} parts (SALS on {sals>sdf-ndc.ecd} and {sals>sdf-ndc.ef1}; mean EF1 {sdf-ndc.ef1} against\n"
-        "{sals.ef1}). SALS leads marching cubes on the same fitted SDF (EF1, {sals>sdf.ef1} of {shapes}); with learned flags\n"
-        "on the same SALS fit (`sals-ndc`, EF1 {sals-ndc.ef1}) SDF + NDC still leads on {sdf-ndc>sals-ndc.ef1} of {shapes}: the\n"
-        "gap is in SALS's fitted flags and normals, not only its extractor.\n", S93),
-    "headline-oracle": Headline(
+        "At the `cpu` budget (3,000 steps, about a minute of fitting per part on one CPU core) on the {shapes} ABC "
+        "parts no published network was trained on, **SDF + NDC** (a fitted SDF extracted by Neural Dual "
+        "Contouring's published network) beats SALS + E-DC on ECD and EF1 on {sdf-ndc>sals.ecd} and "
+        "{sdf-ndc>sals.ef1} of {shapes} parts (mean EF1 {sdf-ndc.ef1} against {sals.ef1}), and SALS with learned "
+        "flags (`sals-ndc`) on {sdf-ndc>sals-ndc.ef1}; SALS leads marching cubes on the same fitted SDF (EF1, "
+        "{sals>sdf.ef1} of {shapes}).", S93),
+    "oracle50-sentence": Headline(
         "With exact fields (oracle, the paper's {shapes} parts) SALS + E-DC against SDF + NDC: EF1 better on\n"
         "{sals>sdf-ndc.ef1} parts and worse on {sdf-ndc>sals.ef1} (mean {sals.ef1} against {sdf-ndc.ef1}), ECD better on\n"
         "{sals>sdf-ndc.ecd} and worse on {sdf-ndc>sals.ecd} (mean x1e2 {sals.ecd} against {sdf-ndc.ecd}).\n", O50),
     "headline-resolution": Headline(
-        "With the `cpu` fits of 12 other unseen parts extracted at 64^3, 128^3 and 256^3, SDF + NDC leads SALS on\n"
-        "EF1 at every grid ({sdf-ndc@256>sals@256.ef1} of {shapes} at 256^3; mean {sdf-ndc@256.ef1} against {sals@256.ef1}),\n"
-        "while SALS's lead over marching cubes on the same fitted SDF (EF1 better on {sals@64>sdf@64.ef1} and\n"
-        "{sals@128>sdf@128.ef1} of {shapes} parts at 64^3 and 128^3) is gone at 256^3: MC better on {sdf@256>sals@256.ef1}\n"
-        "of {shapes} (mean EF1 {sdf@256.ef1} against {sals@256.ef1}; RESULTS 14).\n",
+        "Extracting the `cpu` fits of 12 other unseen parts at 64^3, 128^3 and 256^3: SDF + NDC leads SALS at "
+        "every grid ({sdf-ndc@256>sals@256.ef1} of {shapes} at 256^3), while SALS's lead over marching cubes "
+        "({sals@64>sdf@64.ef1} and {sals@128>sdf@128.ef1} of {shapes} parts at 64^3 and 128^3) is gone at 256^3 "
+        "(MC better on {sdf@256>sals@256.ef1} of {shapes}).",
         tuple(Row(f"{m}@{n}", RESOLUTION, {"method": m, "grid": n}) for n in (256, 128, 64)
               for m in ("sals", "sdf", "sdf-ndc"))),
-    "headline-paper50": Headline(
-        "The paper's own {shapes} parts agree (EF1: SDF + NDC better on {sdf-ndc>sals.ef1}, SALS on {sals>sdf-ndc.ef1}).\n",
-        P50),
 }
 
 
