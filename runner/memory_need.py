@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import csv
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, fields
 from functools import lru_cache
 from pathlib import Path
 from typing import Iterable
@@ -24,8 +24,6 @@ import numpy as np
 
 #: The measured models, one row per (task, method, mode).
 MEASURED = Path(__file__).with_name("measured_memory.csv")
-FIELDS = ("task", "method", "mode", "base_mib", "bytes_per_point", "grids", "jobs", "max_residual_mib", "cpu",
-          "commit")
 MIB = 2**20
 
 
@@ -88,10 +86,9 @@ def fit_models(jobs: Iterable[dict], cpu: str = "", commit: str = "") -> list[Me
 
 def write_models(models: list[MemoryModel], path: Path = MEASURED) -> None:
     with open(path, "w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(FIELDS)
-        for m in models:
-            writer.writerow([getattr(m, name) for name in FIELDS])
+        writer = csv.DictWriter(f, [field.name for field in fields(MemoryModel)])
+        writer.writeheader()
+        writer.writerows(asdict(m) for m in models)
 
 
 @lru_cache(maxsize=4)
@@ -99,11 +96,10 @@ def read_models(path: Path = MEASURED) -> dict[tuple[str, str, str], MemoryModel
     """{(task, method, mode): model} of the measured file ({} where there is none)."""
     if not Path(path).is_file():
         return {}
+    types = {field.name: {"float": float, "int": int}.get(field.type, str) for field in fields(MemoryModel)}
     with open(path, newline="") as f:
-        rows = list(csv.DictReader(f))
-    return {(r["task"], r["method"], r["mode"]): MemoryModel(
-        r["task"], r["method"], r["mode"], float(r["base_mib"]), float(r["bytes_per_point"]), r["grids"],
-        int(r["jobs"]), float(r["max_residual_mib"]), r["cpu"], r["commit"]) for r in rows}
+        models = [MemoryModel(**{k: types[k](v) for k, v in row.items()}) for row in csv.DictReader(f)]
+    return {(m.task, m.method, m.mode): m for m in models}
 
 
 def model_of(task: str, method: str, mode: str, models: dict | None = None) -> tuple[MemoryModel | None, bool]:
