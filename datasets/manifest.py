@@ -21,7 +21,7 @@ from typing import Any
 
 from datasets.registry import DatasetError, DatasetNotFoundError
 
-__all__ = ["file_sha256", "read_manifest", "check_file", "verify_manifest"]
+__all__ = ["file_sha256", "read_manifest", "check_file", "verify_manifest", "shape_bytes_digest"]
 
 _LINE = re.compile(r"^(?P<digest>[0-9a-fA-F]{64}) [ *](?P<path>\S.*)$")
 _CHUNK = 1 << 20
@@ -84,3 +84,15 @@ def verify_manifest(data_dir: Any, manifest: Any) -> list[str]:
     data_dir = Path(data_dir)
     return [p for name, digest in read_manifest(manifest).items()
             if (p := check_file(data_dir / name, digest, manifest.name))]
+
+
+def shape_bytes_digest(dataset, name: str) -> str:
+    """What shape ``name`` of ``dataset`` is made of, as one digest: the SHA-256 (hex) of the one file
+    it reads (equal to its line in a manifest); of several files (a non-manifold pair), the SHA-256
+    of their digests in reading order; of a generated shape (no file), ``generated:`` and the
+    content hash of its canonical arrays (:meth:`datasets.io.Shape.content_hash`)."""
+    files = [path for path, _ in dataset.stored_files(name)]
+    if not files:
+        return "generated:" + dataset.load(name).content_hash
+    digests = [file_sha256(path) for path in files]
+    return digests[0] if len(digests) == 1 else hashlib.sha256("\n".join(digests).encode()).hexdigest()

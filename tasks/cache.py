@@ -43,14 +43,32 @@ from tasks.spec import digest
 PROJECT_PACKAGES = ("foundation", "methods", "datasets", "tasks", "runner")
 
 
-def _module_file(name: str) -> Path:
-    spec = importlib.util.find_spec(name)
-    if spec is None or spec.origin is None or not spec.origin.endswith(".py"):
+def _source_under(root: Path, name: str) -> Path | None:
+    """The source file of module ``name`` in a source tree ``root`` (a package's ``__init__.py`` or
+    a ``.py`` file), or None."""
+    base = root.joinpath(*name.split("."))
+    for path in (base / "__init__.py", base.with_name(base.name + ".py")):
+        if path.is_file():
+            return path
+    return None
+
+
+def _module_file(name: str, root: Path | None = None) -> Path:
+    """The source file of project module ``name``: as Python imports it, or in the source tree
+    ``root`` (another commit's files)."""
+    if root is not None:
+        path = _source_under(root, name)
+    else:
+        spec = importlib.util.find_spec(name)
+        path = Path(spec.origin) if spec is not None and spec.origin and spec.origin.endswith(".py") else None
+    if path is None:
         raise ModuleNotFoundError(f"code digest: project module '{name}' has no source file")
-    return Path(spec.origin)
+    return path
 
 
-def _is_module(name: str) -> bool:
+def _is_module(name: str, root: Path | None = None) -> bool:
+    if root is not None:
+        return _source_under(root, name) is not None
     try:
         spec = importlib.util.find_spec(name)
     except ModuleNotFoundError:  # a parent is not a package (``from a.b import Attribute``)
@@ -95,12 +113,14 @@ def _import_statements(source: str, filename: str) -> tuple[tuple[str, ...], tup
     return tuple(imports), tuple(froms)
 
 
-def project_imports(name: str, path: Path, packages: tuple[str, ...] = PROJECT_PACKAGES) -> set[str]:
+def project_imports(name: str, path: Path, packages: tuple[str, ...] = PROJECT_PACKAGES,
+                    root: Path | None = None) -> set[str]:
     """Modules of ``packages`` named by the import statements of module ``name`` (source ``path``),
     those inside functions included, relative ones resolved.
 
     ``import a.b`` and the ``a.b`` of ``from a.b import c`` must exist (else ModuleNotFoundError);
-    ``a.b.c`` counts when ``c`` is a module rather than an attribute."""
+    ``a.b.c`` counts when ``c`` is a module rather than an attribute. ``root``: resolve the modules
+    in that source tree instead of where Python imports them from."""
     imports, froms = _import_statements(path.read_text(encoding="utf-8"), str(path))
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
     required: set[str] = set(imports)
@@ -113,28 +133,30 @@ def project_imports(name: str, path: Path, packages: tuple[str, ...] = PROJECT_P
         optional.add((base, attribute))
     required = {m for m in required if m.split(".")[0] in packages}
     for mod in required:
-        if not _is_module(mod):
+        if not _is_module(mod, root):
             raise ModuleNotFoundError(f"code digest: '{name}' imports '{mod}', which does not exist")
     found = set(required)
     for base, attribute in optional:
         if base not in required:
             continue
-        if _is_module(f"{base}.{attribute}"):
+        if _is_module(f"{base}.{attribute}", root):
             found.add(f"{base}.{attribute}")
-        elif attribute != "*" and not _defines(_module_file(base), attribute):
+        elif attribute != "*" and not _defines(_module_file(base, root), attribute):
             raise ModuleNotFoundError(f"code digest: '{name}' imports '{base}.{attribute}', which does not exist")
     return found
 
 
 def _computing_source(path: Path) -> bytes:
-    """The module's syntax tree without docstrings, dumped: equal for two files whose code is equal
-    whatever their comments, docstrings, formatting and methods' presentation metadata."""
+    """The module's code without docstrings, as source text regenerated from its syntax tree: equal
+    for two files whose code is equal whatever their comments, docstrings, formatting and methods'
+    presentation metadata, and the same text under every Python version that parses it (a dump of
+    the tree is not: its node fields change between versions)."""
     return _code_without_docstrings(path.read_text(encoding="utf-8"), str(path))
 
 
 @lru_cache(maxsize=None)
 def _code_without_docstrings(source: str, filename: str) -> bytes:
-    """The dump of the syntax tree without docstrings and without the presentation metadata of
+    """The code regenerated from the syntax tree without docstrings and without the presentation metadata of
     ``@register_method(order=..., color=..., note=...)`` (how tables show a method computes nothing)."""
     tree = ast.parse(source, filename=filename)
     for node in ast.walk(tree):
@@ -147,12 +169,13 @@ def _code_without_docstrings(source: str, filename: str) -> bytes:
             if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant) \
                     and isinstance(body[0].value.value, str):
                 node.body = body[1:] or [ast.Pass()]
-    return ast.dump(tree, annotate_fields=False, include_attributes=False).encode()
+    return ast.unparse(tree).encode()
 
 
-def code_modules(*modules: str) -> dict[str, Path]:
+def code_modules(*modules: str, root: Path | None = None) -> dict[str, Path]:
     """``modules`` and every project module they import, transitively (their packages included):
-    {module name: source file}, sorted by name."""
+    {module name: source file}, sorted by name. ``root``: the modules of that source tree (e.g. a
+    commit's files, :func:`commit_tree`) instead of those Python imports."""
     importlib.invalidate_caches()
     seen: dict[str, Path] = {}
     todo = list(modules)
@@ -160,9 +183,9 @@ def code_modules(*modules: str) -> dict[str, Path]:
         name = todo.pop()
         if name in seen:
             continue
-        path = _module_file(name)
+        path = _module_file(name, root)
         seen[name] = path
-        todo.extend(project_imports(name, path) - set(seen))
+        todo.extend(project_imports(name, path, root=root) - set(seen))
         parent = name.rpartition(".")[0]
         if parent and parent not in seen:
             todo.append(parent)
@@ -170,13 +193,43 @@ def code_modules(*modules: str) -> dict[str, Path]:
 
 
 @lru_cache(maxsize=None)
-def code_digest(*modules: str) -> str:
+def code_digest(*modules: str, root: Path | None = None) -> str:
     """SHA-256 (16 hex) over the code of :func:`code_modules` of ``modules`` (module docstring):
-    comments and docstrings do not count."""
+    comments and docstrings do not count. ``root``: of that source tree's modules."""
     h = hashlib.sha256()
-    for name, path in code_modules(*modules).items():
+    for name, path in code_modules(*modules, root=root).items():
         h.update(name.encode() + b"\0" + _computing_source(path) + b"\0")
     return h.hexdigest()[:16]
+
+
+#: The modules that turn a predicted mesh and its GT into metric values (with what they import):
+#: the code a stored row's numbers depend on once its mesh exists.
+METRIC_MODULES = ("foundation.metrics",)
+
+
+def metric_code_digest(root: Path | None = None) -> str:
+    """The code digest of the metrics (:data:`METRIC_MODULES`); ``root``: of another source tree."""
+    return code_digest(*METRIC_MODULES, root=root)
+
+
+@contextlib.contextmanager
+def commit_tree(commit: str, repo: Path) -> Iterator[Path]:
+    """The project's packages (:data:`PROJECT_PACKAGES`) as they were at ``commit`` of the git
+    checkout ``repo``, in a temporary folder (for :func:`code_digest` ``root``); ValueError (one
+    line) when git does not know the commit."""
+    import subprocess
+    import tarfile
+    import tempfile
+
+    archive = subprocess.run(["git", "archive", "--format=tar", commit, *PROJECT_PACKAGES], cwd=repo,
+                             capture_output=True)
+    if archive.returncode != 0:
+        reason = archive.stderr.decode(errors="replace").strip().splitlines()
+        raise ValueError(f"commit {commit}: not in the git history of {repo} ({reason[0] if reason else 'git failed'})")
+    with tempfile.TemporaryDirectory(prefix="salsbench-commit-") as folder:
+        with tarfile.open(fileobj=io.BytesIO(archive.stdout)) as tar:
+            tar.extractall(folder, filter="data")
+        yield Path(folder)
 
 
 def task_code_modules(spec) -> tuple[str, ...]:

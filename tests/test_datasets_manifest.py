@@ -210,3 +210,15 @@ def test_sals_abc50_with_an_altered_and_a_missing_part_runs_the_other_48(tmp_pat
     assert f"{stems[0]}.stl: SHA-256" in lines[0]  # the altered file, named
     assert f"1 of 50 lines of {SALS_ABC_LIST}" in lines[1] and stems[1] in lines[1]  # the missing one, named
     assert ds.names() == stems[2:] and sorted(ds.missing) == sorted(stems[:2])
+
+
+def test_shape_bytes_digest_is_the_files_sha256_or_the_generated_arrays_hash(tmp_path):
+    from datasets.manifest import shape_bytes_digest
+
+    V, F = tetra()
+    save_mesh(tmp_path / "a.ply", V, F)
+    folder = get_dataset("meshes", data_dir=tmp_path)
+    assert shape_bytes_digest(folder, "a") == hashlib.sha256((tmp_path / "a.ply").read_bytes()).hexdigest()
+    builtin = get_dataset("builtin")
+    name = builtin.names()[0]
+    assert shape_bytes_digest(builtin, name) == "generated:" + builtin.load(name).content_hash

@@ -201,3 +201,32 @@ def test_edits_outside_the_computing_code_re_run_no_finished_job(tmp_path, capsy
                           text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
     assert "(0 run now, 3 done before)" in proc.stderr.strip().splitlines()[-1]
+
+
+def test_code_digest_of_another_source_tree_reads_that_trees_files(tmp_path):
+    """``root``: the digest of a commit's files (git archive) is computed on them, not on the code
+    Python imports: a copy of the metrics gives today's digest, an edited copy another one."""
+    import shutil
+
+    from tasks.cache import metric_code_digest
+
+    repo = pathlib.Path(__file__).resolve().parents[1]
+    shutil.copytree(repo / "foundation", tmp_path / "foundation", ignore=shutil.ignore_patterns("__pycache__"))
+    code_digest.cache_clear()
+    assert metric_code_digest(tmp_path) == metric_code_digest()
+    edges = tmp_path / "foundation" / "metrics" / "edges.py"
+    edges.write_text(edges.read_text() + "\nUNUSED = 1\n")
+    code_digest.cache_clear()
+    assert metric_code_digest(tmp_path) != metric_code_digest()
+    with pytest.raises(ModuleNotFoundError, match="'foundation.metrics' has no source file"):
+        code_digest("foundation.metrics", root=tmp_path / "nowhere")
+    code_digest.cache_clear()
+
+
+def test_code_digest_hashes_regenerated_source_not_a_tree_dump():
+    """The digest is of the code as ast.unparse writes it (the same text under every Python that
+    parses it; a dump of the tree changes its node fields between versions)."""
+    from tasks.cache import _code_without_docstrings
+
+    assert _code_without_docstrings('"""Doc."""\ndef f(a,b):\n    "doc"\n    return (a+\n b)  # sum\n', "x.py") == \
+        b"def f(a, b):\n    return a + b"
