@@ -252,8 +252,8 @@ def gallery_html(summary: Summary, meshes_dir: Path | None, colors: dict, limit:
         return (f'<p class="muted">No thumbnails in this report (gallery limit 0); the meshes of its '
                 f'{len(summary.shapes)} shapes are in {esc(str(meshes_dir))}.</p>')
     shapes = summary.shapes[:limit]
-    facts = {(s, m): _figure_facts(summary, s, m) for s in shapes for m in summary.methods}
-    card = _GalleryCard(Path(meshes_dir), tuple(summary.methods), facts, dict(colors), size, vmax, up)
+    facts = {(s, m): _figure_facts(summary, s, m) for s in shapes for m in summary.own_methods}
+    card = _GalleryCard(Path(meshes_dir), tuple(summary.own_methods), facts, dict(colors), size, vmax, up)
     cards = list(map_shapes(card, shapes))
     more = ""
     if len(summary.shapes) > len(shapes):
@@ -396,7 +396,7 @@ def write_html(path: Path, summary: Summary, timing: pd.DataFrame, context: dict
         *([("decomposition", "Error decomposition", table_html(t["decomposition"]) + notes_html(t["decomposition"])
             + (table_html(t["component-errors"]) + notes_html(t["component-errors"]) if "component-errors" in t else ""))]
           if "decomposition" in t else []),
-        ("timing", "Timing", _timing_html(timing, context, results)),
+        ("timing", "Timing", _timing_html(timing, context, summary.own_results())),
         ("failed", f"Failed jobs ({n_failed})", _failed_html(summary)),
         ("protocol", "Protocol", _protocol_html(context) + context_html),
     ]
@@ -406,7 +406,7 @@ def write_html(path: Path, summary: Summary, timing: pd.DataFrame, context: dict
     subtitle = " · ".join(x for x in facts if x)
     title = report_title(context, "report")
     page_bytes = len(_page(title, subtitle, chips, sections).encode("utf-8"))
-    viewer = viewer_html(summary.shapes, summary.methods, meshes_dir, lambda s, m: _view_caption(summary, s, m),
+    viewer = viewer_html(summary.shapes, summary.own_methods, meshes_dir, lambda s, m: _view_caption(summary, s, m),
                          colors, preset=context["metric_preset"], up=context.get("up_axis") or "", vmax=ERROR_VMAX,
                          page_budget=size_budget(max_bytes), page_bytes=page_bytes, limit=gallery_limit,
                          map_shapes=map_shapes)

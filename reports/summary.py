@@ -1,5 +1,8 @@
 """The paper tables of one run, computed once (:func:`build_summary`) and written as summary.md / summary.tex.
 
+A joined reference set (``context['reference']``: its ``labels`` and ``note``, :mod:`runner.references`)
+is rows like the run's, and its note is under every metric table.
+
 Tables: mean, median and std per method (:func:`reports.statistics.statistic_table`; the caption
 says what each mean is over, what its interval is and what bold means: the best and the methods
 within the noise of it), mesh validity of the predictions (the schema's validity columns), and
@@ -60,6 +63,16 @@ class Summary:
     caption: str
     failed: pd.DataFrame
     scored: pd.DataFrame  # the rows the metric tables and plots use (reports.frames.without_unscored)
+    reference_labels: tuple[str, ...] = ()  # rows of a joined reference set (context['reference']): no meshes
+
+    @property
+    def own_methods(self) -> list[str]:
+        """The methods whose rows this run computed (its meshes exist), without a reference's."""
+        return [m for m in self.methods if m not in self.reference_labels]
+
+    def own_results(self) -> pd.DataFrame:
+        """The rows this run computed, without a reference's."""
+        return self.results[~self.results["method"].isin(self.reference_labels)]
 
 
 def shape_order(results: pd.DataFrame, floor: pd.DataFrame | None, preferred) -> list[str]:
@@ -256,7 +269,13 @@ def build_summary(results: pd.DataFrame, floor: pd.DataFrame | None, context: di
     if unscored is not None:
         tables["unscored"] = unscored
     tables.update(decomposition_tables(results, components, metrics, methods, caption))
-    return Summary(results, floor, metrics, methods, shapes, stats, tables, caption, failed_jobs(results), rows)
+    reference = context.get("reference") or {}
+    if reference:
+        for key, table in tables.items():
+            if key in ("mean", "median", "std", "mean-unseen") or key.startswith("shape-"):
+                table.notes.append(reference["note"])
+    return Summary(results, floor, metrics, methods, shapes, stats, tables, caption, failed_jobs(results), rows,
+                   tuple(reference.get("labels", ())))
 
 
 def summary_markdown(summary: Summary, title: str) -> str:

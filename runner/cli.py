@@ -57,6 +57,8 @@ def build_parser() -> argparse.ArgumentParser:
             "Exit status: 0 all ok; 2 refused before any work; 3 finished with failed jobs.\n\n"
             "Regenerate tables/report from finished runs (several side by side):\n"
             "  run_benchmark.py report RUN_DIR [RUN_DIR ...] [--out DIR]\n"
+            "List the reference sets (published rows to join with --reference), or make one from a run:\n"
+            "  run_benchmark.py references [make RUN_DIR --name NAME]\n"
             "Train the learned reconstruction methods' networks without evaluating:\n"
             "  run_benchmark.py train --task reconstruct [--methods sals-knn ...] [--budget cpu]"
         ),
@@ -122,6 +124,8 @@ def build_parser() -> argparse.ArgumentParser:
     setting("quiet", action="store_const", const=True)
     setting("gallery", metavar="N")
     setting("recompute_stale", action="store_const", const=True)
+    setting("reference", metavar="NAME")
+    setting("reference_keep", choices=settings["reference_keep"].choices)
     return p
 
 
@@ -289,6 +293,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return export_inputs_main(argv[1:])
     if argv and argv[0] == "score":
         return score_main(argv[1:])
+    if argv and argv[0] == "references":
+        from runner.references_cli import references_main
+
+        return references_main(argv[1:])
     args = build_parser().parse_args(argv)
     try:
         out = out_dir_of(args)
@@ -441,4 +449,10 @@ def _plan(args: argparse.Namespace, out: Path):
         if saved.get(key) and now[key] and saved[key] != now[key]:
             raise ConfigError(f"--out {out} holds a run trained on another training set ({key} {saved[key]} there, "
                               f"{now[key]} now); use another --out")
+    if config.reference:
+        from runner.references import check_reference, find_reference
+
+        check_reference(find_reference(config.reference), config.to_dict(), now, config.reference_keep)
+    elif config.reference_keep:
+        raise ConfigError("--reference-keep says which rows of --reference to keep: give --reference NAME")
     return dataclasses.replace(plan, config=dataclasses.replace(config, methods=plan.methods))

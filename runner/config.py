@@ -220,6 +220,14 @@ class RunConfig:
     gallery: int | None = _setting(
         "execution", None, "shapes with thumbnails in report.html's gallery (default 24; 0: none, the quickest "
         "report: a thumbnail renders a mesh)", kind=int, ge=0)
+    reference: str | None = _setting(
+        "execution", None, "join a reference set's rows to this run's tables (a set's name, run_benchmark.py "
+        "references lists them, or its folder): marked (ref), paired with the run's rows over the shapes both "
+        "have, never recomputed; refused before any work where its protocol (task, mode, input, grid, metric "
+        "points, preset, dataset and its shapes' bytes) differs or its metric code is stale", kind=str)
+    reference_keep: str | None = _setting(
+        "execution", None, "where a row name is both in this run and in --reference: keep the run's rows (run) "
+        "or the reference's (reference); without it such a run is refused", kind=str, choices=("run", "reference"))
     recompute_stale: bool = _setting(
         "execution", False, "in an existing run directory, recompute the finished tasks whose code changed since "
         "(without it such a run is refused: one directory never mixes two code versions)")

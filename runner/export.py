@@ -109,9 +109,31 @@ def method_notes(task: str, names, params: dict) -> dict[str, str]:
     return notes
 
 
+def _with_reference(results: pd.DataFrame, context: dict[str, Any], record: dict[str, Any], name: str | None,
+                    keep: str | None) -> tuple[pd.DataFrame, dict[str, Any]]:
+    """``results`` and ``context`` with a reference set joined (:func:`runner.references.join_reference`):
+    ``name``, else the run's own ``--reference``."""
+    from runner.config import ConfigError
+    from runner.references import join_reference
+
+    own = name is None
+    name, keep = (record.get("config", {}).get("reference"), record.get("config", {}).get("reference_keep")) if own \
+        else (name, keep)
+    if not name:
+        return results, context
+    try:
+        return join_reference(results, context, record, name, keep)
+    except ConfigError as exc:
+        if not own:
+            raise
+        print(f"salsbench: the tables leave out --reference {name}: {exc}", file=sys.stderr)
+        return results, context
+
+
 def export(run_dir: str | Path, db=None, record: dict[str, Any] | None = None,
            out_dir: str | Path | None = None, gallery: int | None = None,
-           only_complete_shapes: bool = False, map_shapes=map) -> dict[str, Any]:
+           only_complete_shapes: bool = False, map_shapes=map, reference: str | None = None,
+           reference_keep: str | None = None) -> dict[str, Any]:
     """Write results.csv, floor.csv and the reports of a run directory; returns what was written.
 
     ``gallery``: shapes with thumbnails in report.html (None: the report's default).
@@ -119,6 +141,9 @@ def export(run_dir: str | Path, db=None, record: dict[str, Any] | None = None,
     part-way: every method's mean over the same shapes); the protocol line says how many of the
     run's shapes that is. ``map_shapes``: how the report's per-shape drawings are made (builtin
     ``map``; the driver passes its executor's ``map``, which draws on the run's workers).
+    ``reference``: join that reference set's rows to the tables (:mod:`runner.references`; a set
+    that cannot be joined raises ConfigError); None: the run's own ``--reference``, if any (one
+    that can no longer be joined is reported on stderr and left out).
 
     A failure while writing the reports is reported on stderr and never loses results.csv.
     """
@@ -142,6 +167,7 @@ def export(run_dir: str | Path, db=None, record: dict[str, Any] | None = None,
         results, floor, checkpoints, components = (t[t["shape"].isin(keep)].reset_index(drop=True)
                                                    for t in (results, floor, checkpoints, components))
         context.update(shapes=[s for s in context["shapes"] if s in keep], planned_shapes=len(context["shapes"]))
+    shown, context = _with_reference(results, context, record, reference, reference_keep)  # tables only
     out_dir.mkdir(parents=True, exist_ok=True)  # after reading: a database that cannot be read writes nothing
     import reports
     from foundation.errors import one_line
@@ -157,7 +183,7 @@ def export(run_dir: str | Path, db=None, record: dict[str, Any] | None = None,
         written["components"] = out_dir / "components.csv"
     try:
         gallery_limit = {} if gallery is None else {"gallery_limit": gallery}
-        written["reports"] = reports.write_reports(results, floor, context, out_dir, run_dir / "meshes",
+        written["reports"] = reports.write_reports(shown, floor, context, out_dir, run_dir / "meshes",
                                                    **gallery_limit, checkpoints=checkpoints if len(checkpoints) else None,
                                                    components=components if len(components) else None,
                                                    map_shapes=map_shapes)

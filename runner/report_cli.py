@@ -20,6 +20,11 @@ def build_report_parser() -> argparse.ArgumentParser:
     p.add_argument("--complete-shapes", action="store_true",
                    help="only the shapes whose every job has a row (a run stopped part-way: every method's "
                         "means over the same shapes); one run only")
+    p.add_argument("--reference", metavar="NAME",
+                   help="join a reference set's rows to the tables (a set's name or folder; one run only; default: "
+                        "the run's own --reference); refused where its protocol differs")
+    p.add_argument("--reference-keep", choices=("run", "reference"),
+                   help="where a row name is both in the run and in the reference: whose rows to keep")
     p.add_argument("--out", metavar="DIR", help="where to write (default: the run directory itself; for several "
                                                 "runs: runs/compare-<timestamp>)")
     return p
@@ -51,6 +56,8 @@ def _report(args: argparse.Namespace) -> int:
 
     if args.complete_shapes and len(args.runs) > 1:
         raise ConfigError("--complete-shapes reads one run (compare finished runs side by side)")
+    if (args.reference or args.reference_keep) and len(args.runs) > 1:
+        raise ConfigError("--reference joins a set to one run's tables (compare finished runs side by side without it)")
     if len(args.runs) == 1:
         from runner.executors import ProcessExecutor, physical_cores
 
@@ -58,7 +65,8 @@ def _report(args: argparse.Namespace) -> int:
         try:
             written = export(Path(args.runs[0]), out_dir=Path(args.out) if args.out else None,
                              only_complete_shapes=args.complete_shapes,
-                             map_shapes=drawing.map if drawing.workers > 1 else map)
+                             map_shapes=drawing.map if drawing.workers > 1 else map,
+                             reference=args.reference, reference_keep=args.reference_keep)
         finally:
             drawing.close()
         print(f"wrote {written['results']}", file=sys.stderr)

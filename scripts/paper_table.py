@@ -1,7 +1,7 @@
 """The paper's values beside ours, line by line: docs/RESULTS.md's "The paper's table" from the
 per-job CSVs of docs/results/ (scripts/export_results.py) and docs/results/paper-reference.csv.
 
-    python scripts/paper_table.py docs/results/paper-abc50-encode.csv [--table encode]
+    python scripts/paper_table.py references/paper-abc50-encode/rows.csv [--table encode]
 
 For every (method, metric) the paper reports: the paper's value; ours as mean, median and the 95%
 percentile-bootstrap interval of the mean over the shapes (reports.significance, 2,000 resamples,

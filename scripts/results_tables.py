@@ -1,5 +1,6 @@
 """The generated tables of docs/RESULTS.md and README's headline, made from the per-job CSVs of
-docs/results/ (scripts/export_results.py) so that text and data cannot drift apart.
+docs/results/ (scripts/export_results.py) and the rows of the reference sets (references/NAME/rows.csv,
+runner/references.py) so that text and data cannot drift apart.
 
     python scripts/results_tables.py           # rewrite every generated block in place
     python scripts/results_tables.py --check   # exit 1, naming the blocks that differ
@@ -21,7 +22,8 @@ metrics. Everything a block shows is computed here from its CSVs, by one rule ea
   over the shapes both have, p < 0.05: :func:`reports.significance.tied_with_best`), as in every
   table the runs write;
 * paired: for two rows, the shapes where each is better (ties and NaN counted in neither) and the
-  two-sided Wilcoxon p over the shapes both have (:func:`reports.significance.paired_wilcoxon`).
+  two-sided Wilcoxon p over the shapes both have (:func:`reports.significance.paired_wilcoxon`);
+* the paper's values and orderings: scripts/paper_table.py's (``PaperValues``).
 """
 
 from __future__ import annotations
@@ -39,9 +41,11 @@ import pandas as pd
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "scripts"))
 
 from foundation.metrics.presets import PRESETS  # noqa: E402
 from reports.significance import against_best, bootstrap_mean_ci, paired_wilcoxon, tied_with_best  # noqa: E402
+import paper_table  # noqa: E402  (scripts/paper_table.py: the paper's values beside ours, its orderings)
 
 RESULTS = REPO / "docs" / "results"
 #: The files whose generated blocks this script owns.
@@ -65,7 +69,8 @@ BLOCK = re.compile(r"(<!-- generated: (?P<name>[\w.-]+) -->\n)(?P<body>.*?)(<!--
 
 @dataclass(frozen=True)
 class Row:
-    """A table row: the jobs of ``csv`` (a file of docs/results/) whose columns equal ``where``."""
+    """A table row: the jobs of ``csv`` (a file of docs/results/, or a path from the checkout's root:
+    a reference set's ``references/NAME/rows.csv``) whose columns equal ``where``."""
 
     label: str
     csv: str
@@ -115,6 +120,17 @@ class PairedAcross:
 
 
 @dataclass(frozen=True)
+class PaperValues:
+    """Every value the paper's ``table`` (encode or reconstruct) reports for the methods of ``csv``,
+    ours beside it (:func:`paper_table.line_by_line`); with ``orderings``, the paper's pairwise
+    orderings against ours instead (:func:`paper_table.orderings`)."""
+
+    csv: str
+    table: str = "encode"
+    orderings: bool = False
+
+
+@dataclass(frozen=True)
 class Headline:
     """A sentence whose numbers come from the CSVs: each ``{NAME}`` of ``text`` is the number
     :func:`fact` of ``rows`` names so; the text is wrapped at :data:`WIDTH`."""
@@ -125,7 +141,8 @@ class Headline:
 
 @lru_cache(maxsize=None)
 def _csv(name: str) -> pd.DataFrame:
-    return pd.read_csv(RESULTS / name, keep_default_na=False, na_values=[""], dtype={"exact": str})
+    path = REPO / name if "/" in name else RESULTS / name
+    return pd.read_csv(path, keep_default_na=False, na_values=[""], dtype={"exact": str})
 
 
 def per_shape(row: Row) -> pd.DataFrame:
@@ -292,7 +309,22 @@ def fact(name: str, rows: tuple[Row, ...]) -> str:
     return _number(_some(per_shape(by_label[what]), by_label[what])[metric].mean(), metric)
 
 
+def render_paper(spec: PaperValues) -> str:
+    jobs = _csv(spec.csv)
+    reference = pd.read_csv(paper_table.REFERENCE)
+    reference = reference[(reference["table"] == spec.table) & reference["method"].isin(set(jobs["method"]))
+                          & reference["metric"].isin(set(jobs.columns))]
+    frame = (paper_table.orderings if spec.orderings else paper_table.line_by_line)(jobs, reference)
+    frame["metric"] = [METRICS[m][0] for m in frame["metric"]]
+    if spec.orderings:
+        frame["p (paired Wilcoxon)"] = [p_text(float(p)) for p in frame["p (paired Wilcoxon)"]]
+    lines = ["| " + " | ".join(frame.columns) + " |", "|" + "---|" * len(frame.columns)]
+    return "\n".join(lines + ["| " + " | ".join(map(str, r)) + " |" for r in frame.itertuples(index=False)])
+
+
 def render(spec) -> str:
+    if isinstance(spec, PaperValues):
+        return render_paper(spec)
     if isinstance(spec, Summary):
         return render_summary(spec)
     if isinstance(spec, Paired):
@@ -308,9 +340,9 @@ def render(spec) -> str:
 UNSEEN12 = "sals-ndc-unseen12-encode.csv"
 UNSEEN12_ORACLE = "sals-ndc-unseen12-oracle.csv"
 UNSEEN12_PARTS = "sals-ndc-unseen12-decompose.csv"
-UNSEEN93 = "abc-unseen93-encode.csv"
-PAPER50 = "paper-abc50-encode.csv"
-PAPER50_ORACLE = "paper-abc50-oracle.csv"
+UNSEEN93 = "references/abc-unseen93-encode/rows.csv"
+PAPER50 = "references/paper-abc50-encode/rows.csv"
+PAPER50_ORACLE = "references/paper-abc50-oracle/rows.csv"
 
 
 def _rows(csv: str, *methods: str, **where) -> tuple[Row, ...]:
@@ -328,8 +360,47 @@ RN = {m: Row(m, RESOLUTION, {"method": m}) for m in GRID_ROWS}
 S93 = _rows(UNSEEN93, "sals", "sals-ndc", "sdf", "sdf-ndc")
 O50 = _rows(PAPER50_ORACLE, "sals", "sdf-ndc")
 P50 = _rows(PAPER50, "sals", "sdf", "sdf-ndc")
+PAPER50_RECON = "references/paper-abc50-reconstruct/rows.csv"
+PAPER50_SCAN = "references/paper-abc50-reconstruct-scan/rows.csv"
+PAIRS50 = "references/paper-nonmanifold50-encode/rows.csv"
+PAIRS50_ORACLE = "references/paper-nonmanifold50-oracle/rows.csv"
+ENCODE_ROWS = ("sals", "sals-ndc", "sdf", "sdf-ndc", "udf", "udf-dualmesh", "udf-ndc", "udf-dcudf", "bof", "nglod",
+               "uodf")
+RECON_ROWS = ("sals-knn", "geoudf", "gifs", "cap-udf", "poco", "poisson", "ball-pivoting")
+R50, S50 = ({m: Row(m, csv, {"method": m}) for m in RECON_ROWS} for csv in (PAPER50_RECON, PAPER50_SCAN))
+N50, NO50 = ({m: Row(m, csv, {"method": m}) for m in ENCODE_ROWS} for csv in (PAIRS50, PAIRS50_ORACLE))
+#: The tables of a set in full: a row per method, the metrics of the paper's table and the faces.
+SET_METRICS = ("cd", "nc", "f1_005", "ecd", "ef1", "n_faces")
 #: Every generated block: its name in the documents -> what it shows.
 BLOCKS = {
+    "paper50-values": PaperValues(PAPER50),
+    "paper50-orderings": PaperValues(PAPER50, orderings=True),
+    "paper50-neural": Summary("50 parts", _rows(PAPER50, *ENCODE_ROWS), SET_METRICS, intervals=("ef1",)),
+    "oracle50": Summary("50 parts, oracle", _rows(PAPER50_ORACLE, *ENCODE_ROWS), SET_METRICS, intervals=("ef1",)),
+    "recon50-values": PaperValues(PAPER50_RECON, "reconstruct"),
+    "recon50-orderings": PaperValues(PAPER50_RECON, "reconstruct", orderings=True),
+    "recon50": Summary("50 parts, 40k clean points", tuple(R50.values()), ("cd", "nc", "f1_005", "f1_01", "ecd", "ef1",
+                                                                           "n_faces")),
+    "recon50-paired": Paired(tuple((R50["sals-knn"], R50[m]) for m in RECON_ROWS[1:]), ("cd", "ecd", "ef1")),
+    "scan50-values": PaperValues(PAPER50_SCAN, "reconstruct"),
+    "scan50": Summary("50 parts, scan", tuple(S50.values()), ("cd", "nc", "f1_005", "f1_01", "ecd", "ef1", "n_faces")),
+    "scan50-cost": Paired(tuple((Row(f"{m} scan", PAPER50_SCAN, {"method": m}),
+                                 Row(f"{m} clean", PAPER50_RECON, {"method": m})) for m in RECON_ROWS), ("cd", "ef1")),
+    "scan50-paired": Paired(tuple((S50["sals-knn"], S50[m]) for m in RECON_ROWS[1:]), ("cd", "ecd", "ef1")),
+    "pairs50": Summary("50 pairs", tuple(N50[m] for m in ENCODE_ROWS if m != "sals-ndc"), SET_METRICS,
+                       intervals=("cd", "ef1")),
+    "pairs50-paired": Paired(tuple((N50[a], N50[b]) for a, b in (
+        ("sals", "udf"), ("sals", "udf-dualmesh"), ("sals", "sdf"), ("sals", "sdf-ndc"), ("udf-dualmesh", "udf"),
+        ("sdf-ndc", "udf-dualmesh"), ("sals", "udf-ndc"), ("sdf-ndc", "udf-ndc"), ("sals", "udf-dcudf"),
+        ("sals", "bof"), ("sdf", "bof"), ("udf", "bof"), ("sals", "nglod"), ("nglod", "sdf"), ("sals", "uodf"),
+        ("udf", "uodf"), ("udf-dualmesh", "uodf"), ("sdf", "uodf"), ("nglod", "uodf"))), ("cd", "ecd", "ef1")),
+    "pairs50-oracle": Summary("50 pairs, oracle", tuple(NO50.values()), SET_METRICS, intervals=("cd", "ef1")),
+    "pairs50-oracle-paired": Paired(tuple((NO50[a], NO50[b]) for a, b in (
+        ("sals", "sdf-ndc"), ("sals", "udf-dualmesh"), ("sals", "udf-ndc"), ("sals", "udf"), ("sals-ndc", "sals"),
+        ("sdf-ndc", "udf-ndc"), ("udf-dualmesh", "sdf-ndc"), ("sals", "uodf"), ("sals", "bof"))), ("cd", "ecd", "ef1")),
+    "pairs50-oracle-vs-neural": Paired(tuple((Row(f"{m} oracle", PAIRS50_ORACLE, {"method": m}),
+                                              Row(f"{m} fitted", PAIRS50, {"method": m}))
+                                             for m in ENCODE_ROWS if m != "sals-ndc"), ("cd", "ef1")),
     "unseen12-neural": Summary("12 unseen parts", _rows(UNSEEN12, "sals", "sals-ndc", "sdf", "sdf-ndc"),
                                ("cd", "ecd", "ef1", "nc", "f1_005", "n_faces")),
     "unseen12-decompose": Summary(

@@ -109,3 +109,17 @@ def test_across_columns_each_cell_is_its_rows_jobs_at_the_columns_value(tmp_path
     (pair,) = script.render(script.PairedAcross("ef1", ((a, b),), columns)).splitlines()[2:]
     assert pair == "| a vs b | a 3, b 0 (p = 0.25) | b 3, a 0 (p = 0.25) |"
     script._csv.cache_clear()
+
+
+def test_the_papers_values_beside_ours_name_the_metrics_as_the_tables_do(tmp_path, monkeypatch):
+    jobs = pd.DataFrame({"shape": list("abcd") * 2, "method": ["sals"] * 4 + ["sdf"] * 4, "status": "ok",
+                         "ef1": [0.6, 0.8, 0.7, 0.5, 0.2, 0.3, 0.1, 0.4]})
+    jobs.to_csv(tmp_path / "hand.csv", index=False)
+    monkeypatch.setattr(script, "RESULTS", tmp_path)
+    script._csv.cache_clear()
+    values = script.render(script.PaperValues("hand.csv")).splitlines()
+    assert values[0] == "| method | metric | paper | ours: mean | median | 95% interval | ours / paper | jobs |"
+    assert values[2].startswith("| sals | EF1 | 0.601 | 0.650 | 0.650 |")  # the paper's SALS EF1 (paper-reference.csv)
+    order = script.render(script.PaperValues("hand.csv", orderings=True)).splitlines()
+    assert order[2] == "| EF1 | sals vs sdf | sals | sals | yes | 4 | 0.12 |"  # 4 pairs: p = 2 / 2^4
+    script._csv.cache_clear()

@@ -28,7 +28,7 @@ REPO = Path(__file__).resolve().parents[1]
 STAYS_OUT = frozenset({
     "runner", "runner.blocks", "runner.cli", "runner.config", "runner.display", "runner.driver", "runner.executors",
     "runner.export", "runner.export_inputs", "runner.job", "runner.memory", "runner.memory_need", "runner.parsing",
-    "runner.plan",
+    "runner.plan", "runner.references", "runner.references_cli",
     "runner.provenance", "runner.records", "runner.regression", "runner.report_cli", "runner.rundir", "runner.sweep",
     "reports", "reports.compare", "reports.decomposition", "reports.frames", "reports.glb", "reports.html",
     "reports.plots", "reports.protocol", "reports.render", "reports.robustness", "reports.significance",
