@@ -43,8 +43,9 @@ from pathlib import Path
 
 import pandas as pd
 
-COLUMNS = ["shape", "method", "seed", "mode", "budget", "input", "cd", "nc", "f1_005", "f1_01", "ecd", "ef1",
-           "n_faces", "status", "error", "seen_in_training", "commit"]
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from runner.references import ROW_COLUMNS as COLUMNS, budget_label, run_input  # noqa: E402  (one row schema)
 
 COST_COLUMNS = ["grid", "fit_s", "query_s", "extract_s", "metrics_s", "total_s", "peak_rss_mib"]
 
@@ -55,19 +56,6 @@ COMPONENT_COLUMNS = ["shape", "method", "seed", "exact", "cd", "nc", "f1_005", "
 def run_config(run_dir: Path) -> dict:
     """The settings a run was given (its config.json's ``config``)."""
     return json.loads((run_dir / "config.json").read_text())["config"]
-
-
-def run_input(config: dict) -> str:
-    """What a run's jobs read: ``mesh`` (encode) or its reconstruct input (``pc_corruption``)."""
-    return "mesh" if config.get("task", "encode") != "reconstruct" else str(config.get("pc_corruption", "uniform"))
-
-
-def budget_label(budget, budget_params: dict) -> str | None:
-    """A job's budget as the CSV names it: the budget's name and the run's ``--budget-param`` changes
-    (``cpu steps=2400``), so that a row fitted under a changed budget never reads as the named one."""
-    if pd.isna(budget):  # oracle rows: nothing fitted
-        return None
-    return " ".join([str(budget), *(f"{k}={v}" for k, v in sorted(budget_params.items()))])
 
 
 def peak_memory(run_dir: Path) -> pd.Series:
