@@ -157,3 +157,16 @@ def test_weights_other_than_the_published_file_are_refused_in_one_line(tmp_path,
     monkeypatch.setenv(ndc.WEIGHTS_ENV, str(other))
     with pytest.raises(ndc.WeightsError, match="is not NDC's published SDF network"):
         ndc.load_weights()
+
+
+def test_block_by_block_gives_the_whole_grids_bits():
+    """Cells split into blocks of 4 (each block with the grid points its receptive field reads) get
+    the offsets of one pass over the whole grid, bit for bit: the blocks bound the memory, not the
+    values."""
+    state, sdf = _random_state(), _sphere_sdf_voxels()
+    cells = ndc.active_cells(sdf < 0)
+    whole = ndc.ndc_vertex_offsets(sdf, cells, state, block=10**6)
+    assert len(list(ndc.position_blocks(cells, 4))) > 20
+    np.testing.assert_array_equal(ndc.ndc_vertex_offsets(sdf, cells, state, block=4), whole)
+    rows = np.concatenate([r for r, _ in ndc.position_blocks(cells, 4)])
+    np.testing.assert_array_equal(np.sort(rows), np.arange(len(cells)))  # every cell once

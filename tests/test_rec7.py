@@ -48,3 +48,14 @@ def test_outputs_are_the_same_bits_whatever_order_the_products_sum_in():
     np.testing.assert_allclose(sparse_forward(renumbered, grid, positions),
                                dense[0].permute(1, 2, 3, 0).reshape(-1, 3).numpy(), rtol=1e-5, atol=1e-5)
     np.testing.assert_array_equal(sparse_forward(renumbered, grid, positions), sparse_forward(network, grid, positions))
+
+
+def test_block_by_block_gives_the_whole_grids_bits():
+    torch.manual_seed(0)
+    network = Rec7Network(channels=16, in_channels=2, out_channels=4).eval()
+    rng = np.random.default_rng(0)
+    shape = (17, 11, 13)
+    grid = rng.uniform(-1.0, 2.0, size=(2, *(s + 2 * RECEPTIVE_PADDING for s in shape))).astype(np.float32)
+    positions = np.argwhere(rng.random(shape) < 0.3)
+    whole = sparse_forward(network, grid, positions, block=10**6)
+    np.testing.assert_array_equal(sparse_forward(network, grid, positions, block=5), whole)

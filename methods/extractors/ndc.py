@@ -10,6 +10,9 @@ units to mesh); it runs the two steps:
   eight residual blocks of 1x1x1 convolutions, leaky ReLU 0.01) evaluated *sparsely*: only at the
   cells that get a vertex and at the cells their receptive field (7^3 grid points) needs. A dense
   ``conv3d`` over the whole grid gives the same values and spends most of its work on empty space.
+  It runs block by block (:func:`position_blocks`: :data:`BLOCK` cells per axis, each block with
+  the grid points its receptive field reads), so its memory follows one block's surface, not the
+  grid's N^3 or its whole surface: what lets a 512^3 grid fit.
 * :func:`dual_contour_signs`: NDC's dual contouring of a sign grid with per-cell vertex offsets,
   vectorised (NDC's ``dual_contouring_ndc_test``): the same vertices in the same order and the same
   triangles, which point outward.
@@ -70,6 +73,8 @@ _TAIL_RESIDUALS = tuple(f"res_{i}" for i in range(3, 9))
 KERNEL_OFFSETS = np.array(list(itertools.product(range(3), repeat=3)), dtype=np.int64)
 #: Rows gathered per matrix product of a sparse 3x3x3 convolution (bounds the (rows, 27 x 64) buffer).
 _CHUNK = 16384
+#: Output positions per axis of a block of the sparse networks (:func:`position_blocks`).
+BLOCK = 64
 
 
 def weights_path() -> Path:
@@ -160,7 +165,31 @@ def receptive_positions(coords: np.ndarray, shape: tuple[int, int, int]) -> tupl
     return needed, index
 
 
-def ndc_vertex_offsets(sdf_voxels: np.ndarray, cells: np.ndarray, state: dict | None = None) -> np.ndarray:
+def position_blocks(positions: np.ndarray, block: int = BLOCK):
+    """Output ``positions`` (M, 3) of a sparse network grouped by block of ``block`` positions per
+    axis: yields ``(rows, origin)``, the rows of ``positions`` in one block (in their order) and the
+    block's lowest position. A network whose outputs at p read its input at p .. p + 6 gives each
+    block's outputs from the input ``[origin, origin + block + 6)`` alone, the same values as on the
+    whole grid."""
+    if len(positions) == 0:
+        return
+    key = positions // block
+    order = np.lexsort((key[:, 2], key[:, 1], key[:, 0]))
+    ordered = key[order]
+    starts = np.flatnonzero(np.r_[True, np.any(ordered[1:] != ordered[:-1], axis=1)])
+    for lo, hi in zip(starts, np.r_[starts[1:], len(order)]):
+        yield order[lo:hi], ordered[lo] * block
+
+
+def block_input(grid: np.ndarray, origin: np.ndarray, block: int = BLOCK) -> np.ndarray:
+    """The input a block of outputs at ``origin`` reads (:func:`position_blocks`): the last three
+    axes of ``grid`` cut to ``[origin, origin + block + 2 * RECEPTIVE_PADDING)``."""
+    cut = tuple(slice(int(o), int(o) + block + 2 * RECEPTIVE_PADDING) for o in origin)
+    return grid[(Ellipsis, *cut)]
+
+
+def ndc_vertex_offsets(sdf_voxels: np.ndarray, cells: np.ndarray, state: dict | None = None,
+                       block: int = BLOCK) -> np.ndarray:
     """NDC's predicted vertex position inside each of ``cells``, in cell units.
 
     Parameters
@@ -168,6 +197,7 @@ def ndc_vertex_offsets(sdf_voxels: np.ndarray, cells: np.ndarray, state: dict | 
     sdf_voxels : (N, N, N) signed distance on the grid points in voxel units (negative inside).
     cells : (M, 3) int cell indices (i, j, k), each in [0, N - 1).
     state : NDC's state dict (default: :func:`load_weights`).
+    block : cells per axis evaluated at once (:func:`position_blocks`; the values do not depend on it).
 
     Returns
     -------
@@ -176,13 +206,20 @@ def ndc_vertex_offsets(sdf_voxels: np.ndarray, cells: np.ndarray, state: dict | 
     """
     state = inference_state(load_weights() if state is None else state)
     grid = network_input(sdf_voxels)
-    n = sdf_voxels.shape[0]
     cells = np.asarray(cells, dtype=np.int64).reshape(-1, 3)
-    if len(cells) == 0:
-        return np.zeros((0, 3), dtype=np.float32)
-    # positions per layer output: conv_2 -> (n,)^3 (the cells), conv_1 -> (n + 2,)^3, conv_0 -> (n + 4,)^3
-    at_conv1, index_conv1 = receptive_positions(cells, (n + 2,) * 3)
-    at_conv0, index_conv0 = receptive_positions(at_conv1, (n + 4,) * 3)
+    offsets = np.zeros((len(cells), 3), dtype=np.float32)
+    for rows, origin in position_blocks(cells, block):
+        offsets[rows] = _block_offsets(state, block_input(grid, origin, block), cells[rows] - origin)
+    return offsets
+
+
+def _block_offsets(state: dict, grid: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """:func:`ndc_vertex_offsets` of ``cells`` on the network input ``grid`` that holds their
+    receptive fields (cells at p read grid points p .. p + 6)."""
+    shape = np.array(grid.shape) - 2 * RECEPTIVE_PADDING
+    # positions per layer output: conv_2 -> the cells, conv_1 -> (shape + 2), conv_0 -> (shape + 4)
+    at_conv1, index_conv1 = receptive_positions(cells, tuple(int(s) for s in shape + 2))
+    at_conv0, index_conv0 = receptive_positions(at_conv1, tuple(int(s) for s in shape + 4))
     with torch.no_grad():
         patches = at_conv0[:, None, :] + KERNEL_OFFSETS[None]
         x = torch.from_numpy(grid[patches[..., 0], patches[..., 1], patches[..., 2]]).to(INFERENCE_DTYPE)  # (M0, 27)

@@ -17,8 +17,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from methods.extractors.ndc import (INFERENCE_DTYPE, KERNEL_OFFSETS, inference_state, leaky, pointwise_conv,
-                                    receptive_positions, sparse_conv3)
+from methods.extractors.ndc import (BLOCK, INFERENCE_DTYPE, KERNEL_OFFSETS, block_input, inference_state, leaky,
+                                    pointwise_conv, position_blocks, receptive_positions, sparse_conv3)
 
 #: Grid points of padding each side: the receptive field of the three unpadded 3x3x3 convolutions.
 RECEPTIVE_PADDING = 3
@@ -51,7 +51,7 @@ class Rec7Network(nn.Module):
         return self.conv_out(x)
 
 
-def sparse_forward(network: Rec7Network, grid: np.ndarray, positions: np.ndarray) -> np.ndarray:
+def sparse_forward(network: Rec7Network, grid: np.ndarray, positions: np.ndarray, block: int = BLOCK) -> np.ndarray:
     """``network(grid)`` at output ``positions`` only, without the dense convolution.
 
     Parameters
@@ -59,6 +59,8 @@ def sparse_forward(network: Rec7Network, grid: np.ndarray, positions: np.ndarray
     network : a :class:`Rec7Network`.
     grid : (D + 6, H + 6, W + 6) (one input channel) or (C_in, D + 6, H + 6, W + 6) float input.
     positions : (M, 3) int output positions, each in [0, D) x [0, H) x [0, W).
+    block : positions per axis evaluated at once (:func:`methods.extractors.ndc.position_blocks`: the
+        memory follows a block; the values do not depend on it).
 
     Returns
     -------
@@ -72,8 +74,15 @@ def sparse_forward(network: Rec7Network, grid: np.ndarray, positions: np.ndarray
         grid = grid[None]
     positions = np.asarray(positions, dtype=np.int64).reshape(-1, 3)
     state = inference_state(network.state_dict())
-    if len(positions) == 0:
-        return np.zeros((0, state["conv_out.bias"].shape[0]), dtype=np.float32)
+    out = np.zeros((len(positions), state["conv_out.bias"].shape[0]), dtype=np.float32)
+    for rows, origin in position_blocks(positions, block):
+        out[rows] = _block_forward(state, block_input(grid, origin, block), positions[rows] - origin)
+    return out
+
+
+def _block_forward(state: dict, grid: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """:func:`sparse_forward` of ``positions`` on the input ``grid`` (C_in, ...) that holds their
+    receptive fields."""
     shape = np.array(grid.shape[1:], dtype=np.int64) - 2 * RECEPTIVE_PADDING
     at_conv1, index_conv1 = receptive_positions(positions, tuple(int(s) for s in shape + 2))
     at_conv0, index_conv0 = receptive_positions(at_conv1, tuple(int(s) for s in shape + 4))
