@@ -131,6 +131,12 @@ class PaperValues:
 
 
 @dataclass(frozen=True)
+class ReferenceListing:
+    """The shipped reference sets (``run_benchmark.py references``): name, protocol, rows, commits,
+    CPU, and whether their metric code is this checkout's."""
+
+
+@dataclass(frozen=True)
 class Headline:
     """A sentence whose numbers come from the CSVs: each ``{NAME}`` of ``text`` is the number
     :func:`fact` of ``rows`` names so; the text is wrapped at :data:`WIDTH`."""
@@ -322,7 +328,17 @@ def render_paper(spec: PaperValues) -> str:
     return "\n".join(lines + ["| " + " | ".join(map(str, r)) + " |" for r in frame.itertuples(index=False)])
 
 
+def render_listing() -> str:
+    from runner.references import listing
+
+    frame = listing()
+    lines = ["| " + " | ".join(frame.columns) + " |", "|" + "---|" * len(frame.columns)]
+    return "\n".join(lines + ["| " + " | ".join(map(str, r)) + " |" for r in frame.itertuples(index=False)])
+
+
 def render(spec) -> str:
+    if isinstance(spec, ReferenceListing):
+        return render_listing()
     if isinstance(spec, PaperValues):
         return render_paper(spec)
     if isinstance(spec, Summary):
@@ -373,6 +389,7 @@ N50, NO50 = ({m: Row(m, csv, {"method": m}) for m in ENCODE_ROWS} for csv in (PA
 SET_METRICS = ("cd", "nc", "f1_005", "ecd", "ef1", "n_faces")
 #: Every generated block: its name in the documents -> what it shows.
 BLOCKS = {
+    "references": ReferenceListing(),
     "paper50-values": PaperValues(PAPER50),
     "paper50-orderings": PaperValues(PAPER50, orderings=True),
     "paper50-neural": Summary("50 parts", _rows(PAPER50, *ENCODE_ROWS), SET_METRICS, intervals=("ef1",)),
