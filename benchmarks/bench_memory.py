@@ -7,8 +7,9 @@ resident memory of the job's worker, ``peak_rss_mib`` in its info; the task from
 fits ``peak = base + bytes_per_point * N^3`` per (task, method, mode) over the grids it ran at
 (:func:`runner.memory_need.fit_models`: the largest peak at each grid, least squares), and prints
 each model beside the peak it predicts and the one measured at each grid, and beside the estimate
-the guard used before (240 B x N^3 for every method). ``--write`` replaces runner/measured_memory.csv
-(the guard of every run) with these models, with the CPU and commit the runs' config.json record.
+the guard used before (240 B x N^3 for every method). ``--write`` puts these models into
+runner/measured_memory.csv (the guard of every run), with the CPU and commit the runs' config.json
+record: each replaces the model of its (task, method, mode); the file's other models stay.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from runner.memory_need import MEASURED, MIB, fit_models, write_models
+from runner.memory_need import MEASURED, MIB, fit_models, read_models, write_models
 
 #: The guard's figure before it was measured: 240 bytes per grid point for every method.
 GUESSED_BYTES_PER_POINT = 240
@@ -43,7 +44,8 @@ def jobs_of(run_dir: Path) -> pd.DataFrame:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="+", type=Path, help="finished run directories")
-    parser.add_argument("--write", action="store_true", help=f"replace {MEASURED.name} with the fitted models")
+    parser.add_argument("--write", action="store_true",
+                        help=f"put the fitted models into {MEASURED.name} (each replaces its method's; others stay)")
     args = parser.parse_args(argv)
     jobs = pd.concat([jobs_of(r) for r in args.runs], ignore_index=True)
     environments = [run_record(r).get("environment", {}) for r in args.runs]
@@ -60,8 +62,10 @@ def main(argv: list[str] | None = None) -> int:
                          "base MiB": m.base_mib, "B per point": m.bytes_per_point})
     print(pd.DataFrame(rows).to_markdown(index=False))
     if args.write:
-        write_models(models)
-        print(f"wrote {len(models)} models to {MEASURED}")
+        kept = {**read_models(MEASURED), **{(m.task, m.method, m.mode): m for m in models}}
+        write_models(sorted(kept.values(), key=lambda m: (m.task, m.method, m.mode)))
+        read_models.cache_clear()
+        print(f"wrote {len(models)} models to {MEASURED} ({len(kept)} in all)")
     return 0
 
 
