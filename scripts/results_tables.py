@@ -490,10 +490,10 @@ BLOCKS = {
         "{sals>sdf-ndc.ecd} and worse on {sdf-ndc>sals.ecd} (mean x1e2 {sals.ecd} against {sdf-ndc.ecd}).\n", O50),
     "headline-resolution": Headline(
         "Extracting the `cpu` fits of 12 other unseen parts at 64^3, 128^3 and 256^3: SDF + NDC leads SALS at "
-        "every grid ({sdf-ndc@256>sals@256.ef1} of {shapes} at 256^3), while SALS's lead over marching cubes "
-        "({sals@64>sdf@64.ef1} and {sals@128>sdf@128.ef1} of {shapes} parts at 64^3 and 128^3) is gone at 256^3 "
-        "(MC better on {sdf@256>sals@256.ef1} of {shapes}).",
-        tuple(Row(f"{m}@{n}", RESOLUTION, {"method": m, "grid": n}) for n in (256, 128, 64)
+        "every grid ({sdf-ndc@256>sals@256.ef1} of {shapes} at 256^3, and {sdf-ndc@512>sals@512.ef1} of the 4 parts "
+        "run at 512^3), while SALS's lead over marching cubes ({sals@64>sdf@64.ef1} and {sals@128>sdf@128.ef1} of "
+        "{shapes} parts at 64^3 and 128^3) is gone at 256^3 (MC better on {sdf@256>sals@256.ef1} of {shapes}).",
+        tuple(Row(f"{m}@{n}", RESOLUTION, {"method": m, "grid": n}) for n in (256, 128, 64, 512)
               for m in ("sals", "sdf", "sdf-ndc"))),
 }
 
