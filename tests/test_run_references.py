@@ -269,6 +269,7 @@ def test_meshes_made_elsewhere_scored_beside_the_oracle_set(tmp_path):
     assert main(["score", "--pred-dir", str(preds), "--name", "mine", "--dataset", "sals-abc50", "--shapes", *shapes,
                  "--reference", "paper-abc50-oracle", "--gallery", "0", "--quiet", "--out", str(out)]) == 0
     stats = pd.read_csv(out / "statistics.csv")
+    stats = stats[~stats["method"].str.startswith("floor")]  # the GT against a resample of itself
     assert set(stats["method"]) == {"mine"} | {m + " (ref)" for m in ref.rows["method"]} and stats["method"].nunique() == 12
     cd = stats[stats["metric"] == "cd"].set_index("method")["mean"]
     assert cd["mine"] < cd.drop("mine").min()  # the GT beats every reconstruction
