@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from foundation.errors import one_line
 from runner.config import ConfigError
 from runner.provenance import REPO
 
@@ -73,15 +74,13 @@ def run_protocol(config: dict, resolved: dict) -> dict[str, Any]:
     """The protocol of a run (its config.json's ``config`` and ``resolved``) as :data:`PROTOCOL_KEYS`
     it has."""
     task = config.get("task", "encode")
-    protocol: dict[str, Any] = {"task": task}
+    protocol: dict[str, Any] = {} if task == "score" else {"task": task}
     if task == "encode":
         protocol.update(mode=config.get("mode", "neural"), input="mesh")
     elif task == "reconstruct":
         protocol.update(input=run_input(config), pc_points=config.get("pc_points"), pc_noise=config.get("pc_noise"))
     if task != "score":
         protocol["grid"] = config.get("grid")
-    else:
-        del protocol["task"]
     protocol.update(eval_points=resolved.get("eval_points"), metric_preset=config.get("metric_preset"),
                     dataset=config.get("dataset"))
     return protocol
@@ -103,9 +102,6 @@ class ReferenceSet:
     def protocol(self) -> dict[str, Any]:
         return self.manifest["protocol"]
 
-    def source_of(self, commit: str) -> dict[str, Any]:
-        return next(s for s in self.manifest["sources"] if s["commit"] == commit)
-
     def stale_sources(self) -> list[dict[str, Any]]:
         """The sources whose metric code differs from this checkout's."""
         from tasks.cache import metric_code_digest
@@ -125,8 +121,7 @@ def read_reference(folder: Path) -> ReferenceSet:
         manifest = json.loads((folder / "manifest.json").read_text(encoding="utf-8"))
         rows = pd.read_csv(folder / "rows.csv", dtype={"shape": str, "method": str, "commit": str})
     except (OSError, ValueError) as exc:
-        raise ConfigError(f"reference set {folder}: not readable ({type(exc).__name__}: "
-                          f"{' '.join(str(exc).split())[:200]})") from None
+        raise ConfigError(f"reference set {folder}: not readable ({one_line(exc, limit=200)})") from None
     missing = [c for c in ("name", "protocol", "shapes", "sources") if c not in manifest]
     if missing or set(ROW_COLUMNS) - set(rows.columns):
         what = f"manifest.json lacks {', '.join(missing)}" if missing else \

@@ -22,7 +22,7 @@ import pandas as pd
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from runner.references import (REFERENCES_DIR, ROW_COLUMNS, code_digests, read_reference,  # noqa: E402
-                               shape_digests, stale_reason, write_reference)
+                               run_protocol, shape_digests, stale_reason, write_reference)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -56,13 +56,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"reference_from_csv: {args.csv}: no rows, or not the columns {ROW_COLUMNS}", file=sys.stderr)
         return 2
     options = dict(o.split("=", 1) for o in args.dataset_option)
-    protocol = {"task": args.task}
-    if args.task == "encode":
-        protocol.update(mode=args.mode, input="mesh")
-    else:
-        (corruption,) = set(rows["input"])
-        protocol.update(input=corruption, pc_points=args.pc_points, pc_noise=args.pc_noise)
-    protocol.update(grid=args.grid, eval_points=args.eval_points, metric_preset=args.metric_preset, dataset=args.dataset)
+    (corruption,) = set(rows["input"])  # a set is one input: filter the CSV with --where input=...
+    protocol = run_protocol({"task": args.task, "mode": args.mode, "pc_corruption": corruption, "pc_points": args.pc_points,
+                             "pc_noise": args.pc_noise, "grid": args.grid, "metric_preset": args.metric_preset,
+                             "dataset": args.dataset}, {"eval_points": args.eval_points})
     shapes = list(dict.fromkeys(rows["shape"]))
     sources = []
     for commit in dict.fromkeys(rows["commit"]):

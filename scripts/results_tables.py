@@ -315,6 +315,12 @@ def fact(name: str, rows: tuple[Row, ...]) -> str:
     return _number(_some(per_shape(by_label[what]), by_label[what])[metric].mean(), metric)
 
 
+def _markdown(frame: pd.DataFrame) -> str:
+    """A frame as a Markdown table of the documents' form (cells as they are)."""
+    lines = ["| " + " | ".join(frame.columns) + " |", "|" + "---|" * len(frame.columns)]
+    return "\n".join(lines + ["| " + " | ".join(map(str, r)) + " |" for r in frame.itertuples(index=False)])
+
+
 def render_paper(spec: PaperValues) -> str:
     jobs = _csv(spec.csv)
     reference = pd.read_csv(paper_table.REFERENCE)
@@ -324,16 +330,14 @@ def render_paper(spec: PaperValues) -> str:
     frame["metric"] = [METRICS[m][0] for m in frame["metric"]]
     if spec.orderings:
         frame["p (paired Wilcoxon)"] = [p_text(float(p)) for p in frame["p (paired Wilcoxon)"]]
-    lines = ["| " + " | ".join(frame.columns) + " |", "|" + "---|" * len(frame.columns)]
-    return "\n".join(lines + ["| " + " | ".join(map(str, r)) + " |" for r in frame.itertuples(index=False)])
+    return _markdown(frame)
 
 
 def render_listing() -> str:
     from runner.references import listing
 
     frame = listing()
-    lines = ["| " + " | ".join(frame.columns) + " |", "|" + "---|" * len(frame.columns)]
-    return "\n".join(lines + ["| " + " | ".join(map(str, r)) + " |" for r in frame.itertuples(index=False)])
+    return _markdown(frame)
 
 
 def render(spec) -> str:
