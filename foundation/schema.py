@@ -83,6 +83,7 @@ JOB_COLUMNS: tuple[Column, ...] = (
     _c("genus", "REAL", "validity", "genus", csv=True),
     _c("self_intersecting_pairs", "INTEGER", "validity", "self-int. pairs", csv=True),
     _c("self_intersecting_faces", "INTEGER", "validity", "self-int. faces"),
+    _c("precision", "TEXT", "setup", csv=True),
     _c("shape_hash", "TEXT", "bookkeeping"),
     _c("shape_kind", "TEXT", "bookkeeping"),
     _c("fit_loss", "REAL", "bookkeeping"),

@@ -66,7 +66,7 @@ def record_result(db: ResultsDB, run_dir: RunDirectory, result: TaskResult, firs
         "cache_rejected": len(result.cache_rejected), "device": result.device, "host": result.host,
         "versions": result.versions, "info": result.info, "started": result.started,
         "used_sensors": result.info.get("used_sensors"), "seen_in_training": result.info.get("seen_in_training"),
-        **common,
+        "precision": result.info.get("precision"), **common,
     }, result.metrics, result.timings, sweep=spec.sweep, fitted=int(bool(result.info.get("fitted"))))
 
 

@@ -231,6 +231,7 @@ def _budgets(config: RunConfig, rows: dict[str, RowKind]) -> dict[str, Any]:
     this run, each with the overrides its family reads: ``{family: record}`` (empty in oracle mode
     and when no method trains). A family without that name refuses it, naming its budgets."""
     from methods.base import family_budget
+    from methods.core.device import precision_unavailable
     from runner.sweep import readable_budget_parameters
 
     training = [m for m, row in rows.items() if row.budget_family is not None] if config.budget is not None else []
@@ -242,6 +243,10 @@ def _budgets(config: RunConfig, rows: dict[str, RowKind]) -> dict[str, Any]:
         family = rows[m].budget_family
         if family not in budgets:
             budgets[family] = family_budget(family, config.budget, config.budget_params)
+            precision = getattr(budgets[family], "precision", None)
+            unavailable = precision_unavailable(precision) if precision else None
+            if unavailable:
+                raise ConfigError(f"budget '{config.budget}' with precision={precision}: {unavailable}")
     return budgets
 
 

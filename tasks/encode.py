@@ -53,6 +53,7 @@ def run(ctx: TaskContext) -> None:
         if spec.mode == "neural" else None
     job = _Encode(ctx, method, RunCaches(spec.cache_dir, stats), weights,
                   mesh_key(method, result.shape_hash, spec.mode, spec.grid, weights))
+    precision = getattr(method.budget(spec.budget, spec.budget_params), "precision", None) if weights else None
     # checkpoints need the fit, a decomposition the fitted field
     cached = None if spec.checkpoints or spec.decompose else job.caches.load_mesh(spec.method, job.mesh)
     model = fields = grid_field = None
@@ -72,6 +73,7 @@ def run(ctx: TaskContext) -> None:
         faces = np.asarray(extraction.faces, dtype=np.int64)
         timings = {k: v for k, v in ctx.timer.seconds.items() if not k.startswith(_NOT_CACHED)}
         job.caches.save_mesh(spec.method, job.mesh, vertices, faces, timings, result.info, result.fit_loss)
+    result.info["precision"] = precision  # the fit's arithmetic, also where the mesh came from the cache
     result.cache, result.cache_rejected = list(stats.hits), list(stats.rejected)
     score(ctx, vertices, faces)
     if spec.decompose:

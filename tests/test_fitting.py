@@ -56,7 +56,7 @@ def test_budgets_are_data_and_paper_matches_spec():
     assert (paper.depth, paper.width, paper.beta) == (9, 512, 100.0)
     assert (paper.steps, paper.batch_size, paper.num_samples) == (100_000, 10_000, 10_000_000)
     assert (paper.lr, paper.lr_final) == (1e-3, 1e-5)
-    assert set(BUDGETS) == {"paper", "quick", "tiny", "cpu", "cpu-mlp", "tiny-grid"}
+    assert set(BUDGETS) == {"paper", "quick", "tiny", "cpu", "cpu-mlp", "tiny-grid", "mlp"}
     cpu, mlp = BUDGETS["cpu"], BUDGETS["cpu-mlp"]  # the backbone comparison: the same samples, no grid
     assert (mlp.backbone, mlp.batch_size, mlp.num_samples) == ("mlp", cpu.batch_size, cpu.num_samples)
     assert get_budget("tiny") is BUDGETS["tiny"]
@@ -70,7 +70,7 @@ def test_mlp_budgets_keep_their_values_network_and_optimizer():
     """paper, quick and tiny are MLP budgets with these values and network arguments, and one AdamW group."""
     common = dict(beta=100.0, lr_final=1e-5, weight_decay=0.01, activation="softplus", backbone="mlp",
                   grid_resolutions=(), grid_channels=0, lr_grid=0.0, lr_grid_final=0.0, fused_adam=False,
-                  warmup_fraction=0.0)
+                  warmup_fraction=0.0, precision="float32")
     expected = {
         "paper": dict(depth=9, width=512, steps=100_000, batch_size=10_000, num_samples=10_000_000, lr=1e-3,
                       log_every=500),

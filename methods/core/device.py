@@ -119,3 +119,54 @@ def flush_denormals() -> Iterator[None]:
         _flush_depth -= 1
         if _flush_depth == 0:
             torch.set_flush_denormal(False)
+
+
+#: The arithmetic a fit's forward and backward passes may run in: ``float32`` (every CPU gives the
+#: same numbers on the same float path) or ``bfloat16`` (autocast: matrix products in bfloat16 with
+#: float32 accumulation, weights, optimizer state and loss in float32; faster where the CPU has
+#: bfloat16 instructions, and rounded differently from float32, so a fit moves like a change of seed).
+PRECISIONS = ("float32", "bfloat16")
+
+#: CPU flags (Linux ``/proc/cpuinfo``) of native bfloat16 arithmetic: AVX-512 BF16 (newer EPYC and
+#: Xeon cores) and AMX (Xeon Sapphire Rapids and later). Without them torch emulates bfloat16.
+BFLOAT16_CPU_FLAGS = ("avx512_bf16", "amx_bf16")
+
+
+@lru_cache(maxsize=None)
+def cpu_flags() -> frozenset[str]:
+    """The CPU's feature flags as Linux lists them (empty where ``/proc/cpuinfo`` is absent)."""
+    try:
+        with open("/proc/cpuinfo", encoding="ascii", errors="replace") as f:
+            for line in f:
+                if line.startswith("flags"):
+                    return frozenset(line.split(":", 1)[1].split())
+    except OSError:
+        pass
+    return frozenset()
+
+
+def precision_unavailable(precision: str, device: torch.device | str | None = None) -> str | None:
+    """Why ``precision`` cannot run natively on ``device`` (None: it can). float32 always can;
+    bfloat16 on a CUDA device that supports it, or on a CPU with one of :data:`BFLOAT16_CPU_FLAGS`."""
+    if precision not in PRECISIONS:
+        return f"unknown precision {precision!r}; known: {', '.join(PRECISIONS)}"
+    if precision == "float32":
+        return None
+    device = get_device(device)
+    if device.type == "cuda":
+        return None if torch.cuda.is_bf16_supported() else f"{describe_device(device)} has no bfloat16 arithmetic"
+    if device.type == "cpu":
+        if cpu_flags() & set(BFLOAT16_CPU_FLAGS):
+            return None
+        return (f"this CPU has no bfloat16 instructions (none of {', '.join(BFLOAT16_CPU_FLAGS)}); "
+                f"use precision=float32")
+    return f"bfloat16 fits are not supported on {device.type}"
+
+
+def autocast(precision: str, device: torch.device | str | None = None):
+    """The context in which a fit's forward pass runs at ``precision`` (:data:`PRECISIONS`):
+    torch's autocast to bfloat16, or nothing for float32."""
+    device = get_device(device)
+    if precision == "float32":
+        return contextlib.nullcontext()
+    return torch.autocast(device_type=device.type, dtype=torch.bfloat16)

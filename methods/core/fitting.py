@@ -35,7 +35,7 @@ import torch
 from foundation.params import Param, check_fields, setting
 from methods.core.budgets import register_budget_family
 from methods.core.weights import weights_from_bytes, weights_to_bytes
-from methods.core.device import get_device, seeded_generator
+from methods.core.device import PRECISIONS, autocast, get_device, precision_unavailable, seeded_generator
 from methods.core.network import BACKBONES, FeatureGrid, make_network
 from methods.core.schedules import warmup_cosine_lr
 from methods.core.training_loop import FittingError, run_steps
@@ -56,7 +56,10 @@ class Budget:
     the MLP budgets, whose numbers stay those of the default kernel.
     ``log_every``: the loss is checked for NaN/inf and reported to ``progress`` every so many steps.
     ``warmup_fraction``: the first ``round(warmup_fraction * steps)`` steps ramp both learning
-    rates linearly up to their schedule (:func:`methods.core.schedules.warmup_cosine_lr`); 0 = none (the MLP budgets).
+    rates linearly up to their schedule (:func:`methods.core.schedules.warmup_cosine_lr`); 0 = none.
+    ``precision``: ``'float32'`` (the numbers any CPU reproduces on its float path) or ``'bfloat16'``
+    (the forward pass under :func:`methods.core.device.autocast`; refused where the device lacks
+    bfloat16 arithmetic, :func:`methods.core.device.precision_unavailable`).
     """
 
     name: str = setting(Param(kind=str, help="budget name"))
@@ -82,6 +85,9 @@ class Budget:
     fused_adam: bool = setting(Param(False, "torch's fused AdamW kernel"))
     warmup_fraction: float = setting(Param(0.0, "fraction of the steps that ramp the learning rates up linearly",
                                            ge=0, lt=1), override=True)
+    precision: str = setting(Param("float32", "arithmetic of the forward and backward passes (bfloat16: autocast, "
+                                   "float32 weights, optimizer and loss; only where the device has it)",
+                                   choices=PRECISIONS), override=True)
 
     def __post_init__(self):
         check_fields(self, f"budget '{self.name}'")
@@ -122,6 +128,8 @@ ENCODE_FAMILY = register_budget_family("encode", (
            grid_channels=4, lr_grid=1e-2, lr_grid_final=1e-4, fused_adam=True, warmup_fraction=0.05),
     Budget("cpu-mlp", depth=5, width=128, steps=1_200, batch_size=4_096, num_samples=1_000_000,
            lr=1e-3, log_every=50),
+    Budget("mlp", depth=5, width=256, steps=16_000, batch_size=4_096, num_samples=1_000_000,
+           lr=1e-3, lr_final=1e-5, log_every=100, warmup_fraction=0.05),
     Budget("tiny-grid", depth=3, width=32, steps=250, batch_size=2_048, num_samples=100_000,
            lr=1e-2, lr_final=1e-4, log_every=25, backbone="grid", grid_resolutions=(16, 32, 64),
            grid_channels=4, lr_grid=1e-2, lr_grid_final=1e-4, fused_adam=True, warmup_fraction=0.05),
@@ -216,6 +224,18 @@ def gather_rows(inputs: torch.Tensor, targets: dict[str, torch.Tensor], rows: to
     return inputs.index_select(0, rows), {key: value.index_select(0, rows) for key, value in targets.items()}
 
 
+def as_float32(prediction):
+    """``prediction`` (a tensor, or a tuple/list/dict of them, as ``method.predict`` returns) with every
+    floating tensor in float32: a bfloat16 forward pass's outputs, so the loss is computed in float32."""
+    if isinstance(prediction, torch.Tensor):
+        return prediction.float() if prediction.is_floating_point() else prediction
+    if isinstance(prediction, dict):
+        return {key: as_float32(value) for key, value in prediction.items()}
+    if isinstance(prediction, (tuple, list)):
+        return type(prediction)(as_float32(value) for value in prediction)
+    return prediction
+
+
 def fit(method, samples, targets: dict, budget: str | Budget, seed: int = 0, device=None,
         progress: Callable[..., None] | None = None, checkpoints: Sequence[int] = (),
         on_checkpoint: Callable[[int, float, torch.nn.Module], None] | None = None) -> FitResult:
@@ -237,6 +257,9 @@ def fit(method, samples, targets: dict, budget: str | Budget, seed: int = 0, dev
     """
     budget = get_budget(budget)
     device = get_device(device)
+    unavailable = precision_unavailable(budget.precision, device)
+    if unavailable:
+        raise FittingError(f"budget '{budget.name}' asks for precision={budget.precision}: {unavailable}")
     inputs = method.network_inputs(samples)
     x_all, t_all = _to_tensors(inputs, targets, device)
     M = len(x_all)
@@ -251,7 +274,9 @@ def fit(method, samples, targets: dict, budget: str | Budget, seed: int = 0, dev
     def step_loss(step: int) -> torch.Tensor:
         idx = torch.randint(0, M, (B,), generator=generator, device=device)
         xb, tb = gather_rows(x_all, t_all, idx)
-        return method.loss(method.predict(model, xb), tb)
+        with autocast(budget.precision, device):
+            prediction = method.predict(model, xb)
+        return method.loss(as_float32(prediction), tb)
 
     where = f"(method '{method.name}', budget '{budget.name}', seed {seed})"
     result = run_steps(model, optimizer, T, step_loss, log_every=budget.log_every,
