@@ -103,8 +103,10 @@ class RunConfig:
     budget: str | None = _setting(
         "identity", "cpu", "fitting budget, the same for every method: cpu (default; feature-grid backbone, 3,000 "
         "steps: a fit in under a minute on one CPU core), quick (a small MLP, the CPU reference without the grid), "
-        "cpu-mlp (the cpu budget's seconds on a plain 5 x 128 MLP: the backbone comparison), paper (the paper's "
-        "9 x 512 MLP, 100k steps: a GPU budget), tiny and tiny-grid (tests and CI)",
+        "mlp (the paper's kind of network at 2-core size: a plain 5 x 256 Softplus MLP, 16k steps; add "
+        "--budget-param precision=bfloat16 where the CPU has bfloat16), cpu-mlp (the cpu budget's seconds on a "
+        "plain 5 x 128 MLP), paper (the paper's 9 x 512 MLP, 100k steps: a GPU budget), tiny and tiny-grid "
+        "(tests and CI)",
         sweep="budget", optional=True)
     grid: int = _setting(
         "identity", 128, f"grid points per axis on [-1,1] (default 128; >= {MIN_GRID}, bounded by this machine's "

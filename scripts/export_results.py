@@ -25,6 +25,10 @@ from the job's info in results.db); with ``--components``, each row's grid.
 ``--extra A,B`` adds those columns of results.csv (e.g. ``eprecision,erecall``: EF1's precision and
 recall; ``sweep.KEY``: a sweep's value, which then tells its jobs apart) before ``commit``.
 
+``--budget-fields A,B`` adds a column per field of the encode budget (e.g. ``steps``): each job's value,
+from its sweep column (``sweep.budget.A``) where the run swept it, else the run's budget as
+config.json resolved it (its ``--budget-param`` changes included); empty for oracle rows.
+
 ``--where COLUMN=VALUE`` (repeatable) keeps the runs' jobs with that value (``--where mode=oracle``);
 ``--complete-shapes`` keeps the shapes that have every (method, mode, budget, input, grid) the kept jobs
 have anywhere, so that each table over the CSV is over the same shapes (a run stopped part-way).
@@ -67,11 +71,29 @@ def peak_memory(run_dir: Path) -> pd.Series:
     return pd.Series({key: json.loads(info or "{}").get("peak_rss_mib") for key, info in rows}, dtype=float)
 
 
-def job_rows(run_dir: Path, commit: str, cost: bool = False, extra: tuple[str, ...] = ()) -> pd.DataFrame:
+def budget_fields(run_dir: Path, frame: pd.DataFrame, fields: tuple[str, ...]) -> pd.DataFrame:
+    """Each job's value of each encode budget field of ``fields`` (see the module docstring)."""
+    resolved = (json.loads((run_dir / "config.json").read_text()).get("resolved", {}).get("budget") or {}).get("encode")
+    if resolved is None:
+        raise ValueError(f"--budget-fields: {run_dir}: the run has no encode budget")
+    out = pd.DataFrame(index=frame.index)
+    for name in fields:
+        if name not in resolved:
+            raise ValueError(f"--budget-fields: {run_dir}: the encode budget has no field {name}")
+        swept = frame.get(f"sweep.budget.{name}")
+        value = swept if swept is not None else pd.Series(resolved[name], index=frame.index)
+        out[name] = value.where(frame["mode"] == "neural")
+    return out
+
+
+def job_rows(run_dir: Path, commit: str, cost: bool = False, extra: tuple[str, ...] = (),
+             budget: tuple[str, ...] = ()) -> pd.DataFrame:
     """The jobs of one run directory (its results.csv) in :data:`COLUMNS` (and :data:`COST_COLUMNS`
-    with ``cost``, then ``extra``, before ``commit``)."""
+    with ``cost``, then ``extra`` and the ``budget`` fields, before ``commit``)."""
     config = run_config(run_dir)
     frame = pd.read_csv(run_dir / "results.csv")
+    if budget:
+        frame[list(budget)] = budget_fields(run_dir, frame, budget)
     frame["input"] = run_input(config)
     if "budget" in frame:
         changes = config.get("budget_params") or {}
@@ -81,8 +103,9 @@ def job_rows(run_dir: Path, commit: str, cost: bool = False, extra: tuple[str, .
         frame["peak_rss_mib"] = frame["config_hash"].map(peak_memory(run_dir))
     missing = [c for c in extra if c not in frame]
     if missing:
-        raise ValueError(f"{run_dir}: results.csv has no column {missing[0]}")
-    return frame.reindex(columns=COLUMNS[:-1] + (COST_COLUMNS if cost else []) + list(extra) + COLUMNS[-1:])
+        raise ValueError(f"--extra: {run_dir}: results.csv has no column {missing[0]}")
+    return frame.reindex(columns=COLUMNS[:-1] + (COST_COLUMNS if cost else []) + list(extra) + list(budget)
+                         + COLUMNS[-1:])
 
 
 def complete_shapes(jobs: pd.DataFrame) -> pd.DataFrame:
@@ -115,6 +138,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cost", action="store_true",
                         help="add each job's grid, seconds and peak memory (COST_COLUMNS)")
     parser.add_argument("--extra", default="", metavar="A,B", help="more columns of results.csv to keep")
+    parser.add_argument("--budget-fields", default="", metavar="A,B",
+                        help="add each job's value of these encode budget fields (e.g. steps)")
     parser.add_argument("--where", action="append", default=[], metavar="COLUMN=VALUE",
                         help="keep the runs' jobs whose COLUMN has VALUE (repeatable)")
     parser.add_argument("--complete-shapes", action="store_true",
@@ -138,11 +163,12 @@ def main(argv: list[str] | None = None) -> int:
                   + (", on a --decompose run" if args.components else "") + ")", file=sys.stderr)
             return 2
         extra = tuple(c for c in args.extra.split(",") if c)
+        budget = tuple(c for c in args.budget_fields.split(",") if c)
         try:
             frames.append(component_rows(run, args.commit, args.cost) if args.components
-                          else job_rows(run, args.commit, args.cost, extra))
+                          else job_rows(run, args.commit, args.cost, extra, budget))
         except ValueError as exc:
-            print(f"export_results: --extra: {exc}", file=sys.stderr)
+            print(f"export_results: {exc}", file=sys.stderr)
             return 2
     for condition in args.where:
         column, _, value = condition.partition("=")
@@ -158,7 +184,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"export_results: --append: {args.out} does not exist", file=sys.stderr)
             return 2
         frames.insert(0, pd.read_csv(args.out))
-    extra = [c for c in args.extra.split(",") if c]  # a sweep's columns (sweep.KEY) tell its jobs apart
+    extra = [c for c in (args.extra + "," + args.budget_fields).split(",") if c]  # they tell jobs apart
     job = keys + ([] if args.components else ["mode", "budget", "input"] + (["grid"] if args.cost else []) + extra)
     replaced = 0
     if args.replace_failed:

@@ -146,6 +146,7 @@ def _fit(job: _Encode, fields):
     from foundation.sampler import sample_training_data
     from foundation.seeding import job_streams
     from methods.core import fitting
+    from methods.core.training_loop import window_means
 
     ctx, spec, method = job.ctx, job.spec, job.method
     budget = method.budget(spec.budget, spec.budget_params)
@@ -185,6 +186,7 @@ def _fit(job: _Encode, fields):
     if paused:
         ctx.timer.add("checkpoints_s", sum(paused))
     ctx.result.fit_loss = fit.final_loss
-    ctx.result.info.update(fitted=1, fit_steps=fit.steps, fit_samples_per_s=fit.samples_per_s, fit_loop_s=fit.seconds)
+    ctx.result.info.update(fitted=1, fit_steps=fit.steps, fit_samples_per_s=fit.samples_per_s, fit_loop_s=fit.seconds,
+                           fit_loss_curve=window_means(fit.losses, budget.log_every), fit_loss_every=budget.log_every)
     job.caches.save_weights(method, job.weights, fit, budget)
     return fit.model

@@ -1,9 +1,11 @@
-"""methods/core/device.py: the device choice and the denormal flushing of CPU float operations."""
+"""methods/core/device.py: the device choice, the denormal flushing of CPU float operations and the
+fit precisions a device can run."""
 
 import pytest
 import torch
 
-from methods.core.device import flush_denormals, get_device
+from methods.core import device
+from methods.core.device import autocast, flush_denormals, get_device, precision_unavailable
 
 
 def _doubled_denormal() -> float:
@@ -47,3 +49,24 @@ def test_float_path_environment_sets_or_clears_torchs_kernel_family():
     assert base[CAPABILITY_ENV] == "avx2"  # the caller's mapping is left alone
     with pytest.raises(ValueError, match="unknown float path 'avx512'"):
         float_path_environment("avx512", base)
+
+
+def test_bfloat16_needs_the_cpus_bfloat16_instructions_and_float32_runs_anywhere(monkeypatch):
+    monkeypatch.setattr(device, "cpu_flags", lambda: frozenset({"avx2", "avx512f"}))
+    reason = precision_unavailable("bfloat16", "cpu")
+    assert "no bfloat16 instructions" in reason and "avx512_bf16" in reason and "\n" not in reason
+    assert precision_unavailable("float32", "cpu") is None
+    for flag in device.BFLOAT16_CPU_FLAGS:
+        monkeypatch.setattr(device, "cpu_flags", lambda flag=flag: frozenset({"avx2", flag}))
+        assert precision_unavailable("bfloat16", "cpu") is None
+    assert "unknown precision 'float16'" in precision_unavailable("float16", "cpu")
+
+
+def test_cpu_flags_are_this_machines_and_autocast_is_off_for_float32():
+    flags = device.cpu_flags()
+    assert isinstance(flags, frozenset) and (not flags or "fpu" in flags or "sse2" in flags)
+    x = torch.ones(4, 4)
+    with autocast("float32", "cpu"):
+        assert (x @ x).dtype == torch.float32
+    with autocast("bfloat16", "cpu"):
+        assert (x @ x).dtype == torch.bfloat16

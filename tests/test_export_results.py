@@ -53,6 +53,31 @@ def test_a_changed_budget_is_named_with_its_changes(tmp_path):
     assert sorted(pd.read_csv(out).budget.dropna()) == ["cpu", "cpu lr=0.005 steps=2400"]
 
 
+def test_budget_fields_are_each_jobs_value_from_its_sweep_or_the_runs_budget(tmp_path, capsys):
+    script = load_script("export_results")
+    rows = [{"shape": "a", "method": "sals", "seed": 0, "mode": "neural", "budget": "mlp", "status": "ok",
+             "precision": "bfloat16"},
+            {"shape": "a", "method": "sdf", "seed": 0, "mode": "oracle", "status": "ok"}]
+    fixed = _run(tmp_path / "fixed", "encode", "uniform", rows, {"steps": 4000, "precision": "bfloat16"})
+    record = json.loads((fixed / "config.json").read_text())
+    record["resolved"] = {"budget": {"encode": {"steps": 4000, "precision": "bfloat16", "lr": 0.001}}}
+    (fixed / "config.json").write_text(json.dumps(record))
+    swept = _run(tmp_path / "swept", "encode", "uniform", [{**rows[0], "sweep.budget.steps": 8000}])
+    (swept / "config.json").write_text(json.dumps({**record, "config": {"task": "encode"}}))
+    out = tmp_path / "out.csv"
+    assert script.main([str(fixed), str(swept), "--commit", "c", "--out", str(out), "--extra", "precision",
+                        "--budget-fields", "steps"]) == 0
+    table = pd.read_csv(out)
+    assert list(table.columns[-3:]) == ["precision", "steps", "commit"]
+    neural = table[table["mode"] == "neural"].sort_values("steps")
+    assert list(neural["steps"]) == [4000, 8000] and list(neural["precision"]) == ["bfloat16"] * 2
+    assert np.isnan(table.loc[table["mode"] == "oracle", "steps"]).all()
+    capsys.readouterr()
+    assert script.main([str(fixed), "--commit", "c", "--out", str(out), "--budget-fields", "stesp"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("export_results: --budget-fields:") and "has no field stesp" in err
+
+
 def test_components_export_one_row_per_job_and_exact_set(tmp_path):
     script = load_script("export_results")
     run = _run(tmp_path / "run", "encode", "uniform", [{"shape": "a", "method": "sals", "seed": 0, "status": "ok"}])

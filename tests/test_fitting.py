@@ -8,7 +8,9 @@ import pytest
 import torch
 
 from methods.base import FieldMethod
-from methods.core.fitting import (BUDGETS, Budget, check_not_constant, fit, get_budget, model_from_bytes,
+from methods.core import device
+from methods.core.device import precision_unavailable
+from methods.core.fitting import (BUDGETS, Budget, as_float32, check_not_constant, fit, get_budget, model_from_bytes,
                                   model_to_bytes, parameter_groups)
 from methods.core.schedules import cosine_lr
 from methods.extractors.marching_cubes import marching_cubes_grid
@@ -284,3 +286,44 @@ def test_checkpoints_pause_the_fit_without_changing_it():
     np.testing.assert_array_equal(evaluate(paused.model, x), evaluate(plain.model, x))
     with pytest.raises(ValueError, match=r"checkpoints must be steps in \[1, 60\]"):
         fit(SphereSDF(), samples, targets, TOY, seed=3, device="cpu", checkpoints=(61,), on_checkpoint=look)
+
+
+def test_the_mlp_budget_is_a_plain_softplus_mlp_that_lowers_its_loss():
+    """The plain-MLP budget: no grid, no encoding, the paper's Softplus(100) and lr 1e-3 -> 1e-5, a 5 %
+    warm-up; its network shortened to 80 steps on the toy sphere gets well below its first loss."""
+    mlp = BUDGETS["mlp"]
+    assert (mlp.backbone, mlp.activation, mlp.beta, mlp.lr, mlp.lr_final) == ("mlp", "softplus", 100.0, 1e-3, 1e-5)
+    assert (mlp.depth, mlp.width, mlp.warmup_fraction, mlp.precision) == (5, 256, 0.05, "float32")
+    samples, targets = _near_sphere(4000, 0)
+    short = get_budget("mlp", {"steps": 80, "batch_size": 512})
+    result = fit(SphereSDF(), samples, targets, replace(short, log_every=10), seed=0, device="cpu")
+    assert (result.model.config["depth"], result.model.config["width"]) == (5, 256)
+    assert result.final_loss < 0.5 * result.losses[:10].mean()
+
+
+def test_as_float32_converts_every_floating_tensor_of_a_prediction():
+    half = torch.ones(2, dtype=torch.bfloat16)
+    out = as_float32({"a": half, "b": (half, torch.arange(2))})
+    assert out["a"].dtype == torch.float32 and out["b"][0].dtype == torch.float32
+    assert out["b"][1].dtype == torch.int64
+
+
+@pytest.mark.skipif(precision_unavailable("bfloat16", "cpu") is not None,
+                    reason=f"{precision_unavailable('bfloat16', 'cpu')}")
+def test_a_bfloat16_fit_learns_keeps_float32_weights_and_rounds_differently():
+    samples, targets = _toy_data()
+    f32 = fit(SphereSDF(), samples, targets, TOY, seed=0, device="cpu")
+    bf16 = fit(SphereSDF(), samples, targets, replace(TOY, precision="bfloat16"), seed=0, device="cpu")
+    again = fit(SphereSDF(), samples, targets, replace(TOY, precision="bfloat16"), seed=0, device="cpu")
+    assert all(p.dtype == torch.float32 for p in bf16.model.parameters())
+    np.testing.assert_array_equal(bf16.losses, again.losses)  # deterministic in its own arithmetic
+    assert not np.array_equal(bf16.losses, f32.losses)
+    assert bf16.final_loss < 0.72 * bf16.losses[0]
+    assert abs(bf16.final_loss - f32.final_loss) < 0.25 * f32.final_loss
+
+
+def test_a_bfloat16_fit_is_refused_where_the_cpu_has_no_bfloat16(monkeypatch):
+    monkeypatch.setattr(device, "cpu_flags", lambda: frozenset({"avx2"}))
+    samples, targets = _toy_data()
+    with pytest.raises(FittingError, match="precision=bfloat16: this CPU has no bfloat16 instructions"):
+        fit(SphereSDF(), samples, targets, replace(TOY, precision="bfloat16"), seed=0, device="cpu")

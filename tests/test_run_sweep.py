@@ -95,6 +95,30 @@ def test_budget_params_override_the_budget_and_are_recorded(fakes, tmp_path):
     assert record["resolved"]["budget"]["encode"]["steps"] == 30
     info = json.loads(sqlite3.connect(out / "results.db").execute("SELECT info FROM jobs").fetchone()[0])
     assert info["fit_steps"] == 30
+    assert info["fit_loss_every"] == 20 and len(info["fit_loss_curve"]) == 2  # steps 1-20 and 21-30
+
+
+def test_the_fits_precision_is_in_config_json_and_every_row(fakes, tmp_path, monkeypatch):
+    from methods.core import device
+    monkeypatch.setattr(device, "cpu_flags", lambda: frozenset({"avx512_bf16"}))  # bfloat16 is emulated elsewhere
+    out = tmp_path / "run"
+    assert main(neural_args(out, tmp_path / "cache", "--budget-param", "precision=bfloat16",
+                            "--sweep", "seed=0,1", "--no-ceiling")) == 0
+    assert json.loads((out / "config.json").read_text())["resolved"]["budget"]["encode"]["precision"] == "bfloat16"
+    assert list(results(out)["precision"]) == ["bfloat16", "bfloat16"]
+    out32 = tmp_path / "run32"
+    assert main(neural_args(out32, tmp_path / "cache")) == 0
+    assert list(results(out32)["precision"]) == ["float32"]
+
+
+def test_bfloat16_is_refused_before_any_work_where_the_cpu_lacks_it(fakes, tmp_path, capsys, monkeypatch):
+    from methods.core import device
+    monkeypatch.setattr(device, "cpu_flags", lambda: frozenset({"avx2"}))
+    out = tmp_path / "run"
+    assert main(neural_args(out, tmp_path / "cache", "--budget-param", "precision=bfloat16")) == EXIT_REFUSED
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "precision=bfloat16: this CPU has no bfloat16 instructions" in err, err
+    assert not out.exists()
 
 
 @pytest.mark.parametrize("args, message", [

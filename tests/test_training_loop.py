@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from methods.core.training_loop import FittingError, checked_loss, run_steps
+from methods.core.training_loop import FittingError, checked_loss, run_steps, window_means
 
 
 def _scalar_model(start: float = 4.0) -> torch.nn.Module:
@@ -52,3 +52,8 @@ def test_checkpoints_pause_in_eval_mode_and_change_nothing():
     assert seen == [(2, False), (6, False)]
     with pytest.raises(ValueError, match="checkpoints must be steps in"):
         run((7,))
+
+
+def test_window_means_are_the_mean_of_each_window_and_of_the_shorter_last_one():
+    assert window_means(np.array([1.0, 3.0, 2.0, 4.0, 10.0]), 2) == [2.0, 3.0, 10.0]
+    assert window_means(np.array([5.0]), 100) == [5.0] and window_means(np.array([]), 3) == []

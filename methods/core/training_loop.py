@@ -36,6 +36,15 @@ def checked_loss(losses: torch.Tensor, end: int, every: int, where: Callable[[in
     return float(window[-1])
 
 
+def window_means(losses: np.ndarray, every: int) -> list[float]:
+    """The mean loss of each window of ``every`` consecutive steps (the last window may be shorter):
+    a fit's loss curve at the resolution its progress reports, small enough to keep with each job."""
+    losses = np.asarray(losses, dtype=np.float64)
+    starts = np.arange(0, len(losses), max(1, int(every)))
+    return [float(v) for v in np.add.reduceat(losses, starts) / np.diff(np.append(starts, len(losses)))] \
+        if len(losses) else []
+
+
 @dataclass
 class StepsResult:
     """Per-step losses (float32, one per step), wall seconds without the checkpoint pauses, and the
