@@ -5,7 +5,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from methods.core.network import (ACTIVATIONS, GRID_INIT_SCALE, SEGMENT_SCALE, FeatureGrid, GridNetwork, endpoint_split,
+from methods.core.network import (ACTIVATIONS, MLP, GRID_INIT_SCALE, SEGMENT_SCALE, FeatureGrid, GridNetwork, endpoint_split,
                              StackedNetworks, fast_softplus, make_network, trilinear, value_and_input_gradient,
                              value_and_input_gradients)
 
@@ -343,3 +343,21 @@ def test_value_and_input_gradient_of_a_plain_mlp_is_the_closed_form_and_of_other
     x64 = x.double().requires_grad_(True)
     (ref64,) = torch.autograd.grad(grid64(x64)[:, 0].sum(), x64)
     assert torch.equal(value_and_input_gradient(grid64, x.double(), create_graph=False)[1], ref64)
+
+
+def test_under_bfloat16_autocast_the_input_layer_keeps_float32_and_the_rest_runs_in_bfloat16():
+    torch.manual_seed(0)
+    net = MLP(3, 1, depth=3, width=16)
+    x = torch.tensor([[0.5009, -0.2503, 0.9994]])  # coordinates bfloat16 would round by up to 0.004
+    seen = []
+    net.layers[1].register_forward_hook(lambda module, inputs, output: seen.append(inputs[0]))
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        out = net(x)
+    assert seen[0].dtype == torch.float32 and out.dtype == torch.bfloat16
+    torch.testing.assert_close(seen[0], net.layers[0](x), rtol=0, atol=0)  # the float32 input layer, bit for bit
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        rounded = net.layers[0](x)  # what autocast alone would give: bfloat16
+    assert rounded.dtype == torch.bfloat16 and not torch.equal(rounded.float(), seen[0])
+    seen.clear()
+    net(x)  # outside autocast: plain float32 all through
+    assert net(x).dtype == torch.float32

@@ -79,7 +79,7 @@ def test_resolve_types_method_params_and_lists_shapes():
     assert len(plan.shapes) == 2 and plan.budgets == {} and plan.eval_points == 1_000_000
     with pytest.raises(ConfigError, match=r"sals.o_threshold='2': expected float in \(0, 1\)"):
         resolve(RunConfig(mode="oracle", methods=("sals",), method_params={"sals": {"o_threshold": "2"}}))
-    with pytest.raises(ConfigError, match="unknown encode budget 'huge'; known encode budgets: paper, quick, tiny, cpu, cpu-mlp, tiny-grid"):
+    with pytest.raises(ConfigError, match="unknown encode budget 'huge'; known encode budgets: paper, quick, tiny, cpu, cpu-mlp, mlp, tiny-grid"):
         resolve(RunConfig(budget="huge"))
 
 

@@ -122,9 +122,9 @@ def flush_denormals() -> Iterator[None]:
 
 
 #: The arithmetic a fit's forward and backward passes may run in: ``float32`` (every CPU gives the
-#: same numbers on the same float path) or ``bfloat16`` (autocast: matrix products in bfloat16 with
-#: float32 accumulation, weights, optimizer state and loss in float32; faster where the CPU has
-#: bfloat16 instructions, and rounded differently from float32, so a fit moves like a change of seed).
+#: same numbers on the same float path) or ``bfloat16`` (autocast: the hidden and output layers'
+#: products in bfloat16; the input layer on raw coordinates, weights, optimizer state and loss in
+#: float32; faster where the CPU has bfloat16 instructions, and rounded differently from float32).
 PRECISIONS = ("float32", "bfloat16")
 
 #: CPU flags (Linux ``/proc/cpuinfo``) of native bfloat16 arithmetic: AVX-512 BF16 (newer EPYC and

@@ -85,8 +85,9 @@ class Budget:
     fused_adam: bool = setting(Param(False, "torch's fused AdamW kernel"))
     warmup_fraction: float = setting(Param(0.0, "fraction of the steps that ramp the learning rates up linearly",
                                            ge=0, lt=1), override=True)
-    precision: str = setting(Param("float32", "arithmetic of the forward and backward passes (bfloat16: autocast, "
-                                   "float32 weights, optimizer and loss; only where the device has it)",
+    precision: str = setting(Param("float32", "arithmetic of the forward and backward passes (bfloat16: autocast of "
+                                   "the hidden and output layers; the input layer, weights, optimizer and loss in "
+                                   "float32; only where the device has bfloat16 arithmetic)",
                                    choices=PRECISIONS), override=True)
 
     def __post_init__(self):

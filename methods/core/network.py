@@ -102,6 +102,10 @@ class MLP(nn.Module):
     """Plain MLP: ``depth`` linear layers (``depth >= 2``), hidden ``width``, activation after every
     layer but the last, no positional encoding. Inputs (B, in_dim) -> outputs (B, out_dim).
 
+    Under a bfloat16 autocast (a fit's ``precision``) the input layer still runs in float32: bfloat16
+    rounds a coordinate in [-1, 1] to 2^-8 of itself (up to 0.004), which puts a floor under an SDF
+    fit's loss; the hidden and output layers' products run in bfloat16.
+
     Initialisation: torch's default for every layer, except the output layer, whose weights are
     scaled by ``OUTPUT_INIT_SCALE`` (0.01) and bias zeroed, so every method starts from outputs ~0
     (SDF/UDF 0 inside their +-0.1 loss clamps, where a clamped prediction has a gradient; occupancy
@@ -129,6 +133,10 @@ class MLP(nn.Module):
         self.layers = nn.Sequential(*layers)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if torch.is_autocast_enabled(x.device.type):  # the input layer on the raw coordinates in float32
+            with torch.autocast(device_type=x.device.type, enabled=False):
+                x = self.layers[0](x.float())
+            return self.layers[1:](x)
         return self.layers(x)
 
 
