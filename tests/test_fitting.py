@@ -327,3 +327,28 @@ def test_a_bfloat16_fit_is_refused_where_the_cpu_has_no_bfloat16(monkeypatch):
     samples, targets = _toy_data()
     with pytest.raises(FittingError, match="precision=bfloat16: this CPU has no bfloat16 instructions"):
         fit(SphereSDF(), samples, targets, replace(TOY, precision="bfloat16"), seed=0, device="cpu")
+
+
+@pytest.mark.skipif(precision_unavailable("bfloat16", "cpu") is not None,
+                    reason=f"{precision_unavailable('bfloat16', 'cpu')}")
+@pytest.mark.parametrize("name", ["sals", "sdf", "udf", "bof"])
+def test_every_encode_method_fits_the_mlp_budget_in_bfloat16(name):
+    """Each fitted method's loss (UDF's with its input gradient) runs under the bfloat16 forward pass
+    of the mlp budget's network, with float32 weights, to within 10 % of the float32 fit's loss."""
+    import trimesh
+
+    from foundation.fields import ExactFields
+    from foundation.sampler import sample_training_data
+    from methods.base import get_method
+
+    sphere = trimesh.creation.icosphere(3, radius=0.6)
+    vertices, faces = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    samples = sample_training_data(vertices, faces, 20_000, np.random.default_rng(0))
+    method = get_method(name)
+    targets = method.training_targets(ExactFields(vertices, faces), samples)
+    budget = get_budget("mlp", {"steps": 60, "batch_size": 512, "precision": "bfloat16", "depth": 3, "width": 64})
+    result = fit(method, samples, targets, replace(budget, log_every=10), seed=0, device="cpu")
+    reference = fit(method, samples, targets, replace(budget, log_every=10, precision="float32"), seed=0, device="cpu")
+    assert all(p.dtype == torch.float32 for p in result.model.parameters())
+    assert np.isfinite(result.losses).all()
+    assert result.final_loss == pytest.approx(reference.final_loss, rel=0.1)

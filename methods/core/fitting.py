@@ -59,7 +59,8 @@ class Budget:
     rates linearly up to their schedule (:func:`methods.core.schedules.warmup_cosine_lr`); 0 = none.
     ``precision``: ``'float32'`` (the numbers any CPU reproduces on its float path) or ``'bfloat16'``
     (the forward pass under :func:`methods.core.device.autocast`; refused where the device lacks
-    bfloat16 arithmetic, :func:`methods.core.device.precision_unavailable`).
+    bfloat16 arithmetic, :func:`methods.core.device.precision_unavailable`). A loss that needs the
+    MLP's input gradient (UDF's, :mod:`methods.core.head_gradient`) is computed in float32 either way.
     """
 
     name: str = setting(Param(kind=str, help="budget name"))

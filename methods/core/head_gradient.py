@@ -118,11 +118,14 @@ def value_and_input_gradients(weights: Sequence[torch.Tensor], biases: Sequence[
     Returns
     -------
     ``(f (B, out), [df[:, i]/dx (B, in) for i in indices])``, all differentiable (once) in ``x``
-    and every weight and bias, by the backward written out in the module docstring. An output's
+    and every weight and bias, by the backward written out in the module docstring; float32 also
+    under a bfloat16 autocast (a fit's ``precision``: this network is then fitted in float32). An output's
     gradient is the same, bit for bit, whichever other outputs are asked with it.
     """
     if len(weights) != len(biases) or not weights:
         raise ValueError(f"one bias per weight, at least one layer: got {len(weights)} weights, {len(biases)} biases")
     parameters = [p for pair in zip(weights, biases) for p in pair]
-    out, *grads = _ValueAndInputGradients.apply(x, float(beta), tuple(int(i) for i in indices), *parameters)
+    with torch.autocast(device_type=x.device.type, enabled=False):  # its backward is float32: so is its forward
+        out, *grads = _ValueAndInputGradients.apply(x, float(beta), tuple(int(i) for i in indices),
+                                                    *parameters)
     return out, grads
