@@ -243,7 +243,7 @@ def _budgets(config: RunConfig, rows: dict[str, RowKind]) -> dict[str, Any]:
         family = rows[m].budget_family
         if family not in budgets:
             budgets[family] = family_budget(family, config.budget, config.budget_params)
-            precision = getattr(budgets[family], "precision", None)
+            precision = getattr(budgets[family], "precision", None)  # a field of the encode fit's records only
             unavailable = precision_unavailable(precision) if precision else None
             if unavailable:
                 raise ConfigError(f"budget '{config.budget}' with precision={precision}: {unavailable}")

@@ -53,7 +53,7 @@ def run(ctx: TaskContext) -> None:
         if spec.mode == "neural" else None
     job = _Encode(ctx, method, RunCaches(spec.cache_dir, stats), weights,
                   mesh_key(method, result.shape_hash, spec.mode, spec.grid, weights))
-    precision = getattr(method.budget(spec.budget, spec.budget_params), "precision", None) if weights else None
+    precision = method.budget(spec.budget, spec.budget_params).precision if weights else None
     # checkpoints need the fit, a decomposition the fitted field
     cached = None if spec.checkpoints or spec.decompose else job.caches.load_mesh(spec.method, job.mesh)
     model = fields = grid_field = None
