@@ -389,6 +389,17 @@ ENCODE_ROWS = ("sals", "sals-ndc", "sdf", "sdf-ndc", "udf", "udf-dualmesh", "udf
 RECON_ROWS = ("sals-knn", "geoudf", "gifs", "cap-udf", "poco", "poisson", "ball-pivoting")
 R50, S50 = ({m: Row(m, csv, {"method": m}) for m in RECON_ROWS} for csv in (PAPER50_RECON, PAPER50_SCAN))
 N50, NO50 = ({m: Row(m, csv, {"method": m}) for m in ENCODE_ROWS} for csv in (PAIRS50, PAIRS50_ORACLE))
+MLP_SCALING = "backbone-mlp-scaling.csv"
+MLP_ROWS = ("sals", "sals-ndc", "sdf", "sdf-ndc")
+#: The step counts of the `mlp` budget whose 12 parts are all in the CSV.
+MLP_STEPS = tuple((f"{n:,} steps", {"steps": n}) for n in (4000,))
+ML = {m: Row(m, MLP_SCALING, {"method": m}) for m in MLP_ROWS}
+MLP_PAIRS = ((ML["sals"], ML["sdf-ndc"]), (ML["sals"], ML["sdf"]), (ML["sals-ndc"], ML["sdf-ndc"]),
+             (ML["sals-ndc"], ML["sals"]))
+#: Each row with the grid backbone (the `cpu` budget, 3,000 steps, 128^3, the same 12 parts) and the MLP.
+BACKBONE_PAIRS = tuple((Row(f"{m} MLP {n // 1000}k", MLP_SCALING, {"method": m, "steps": n}),
+                        Row(f"{m} grid 3k", RESOLUTION, {"method": m, "grid": 128}))
+                       for m in MLP_ROWS for _, where in MLP_STEPS[-1:] for n in (where["steps"],))
 #: The tables of a set in full: a row per method, the metrics of the paper's table and the faces.
 SET_METRICS = ("cd", "nc", "f1_005", "ecd", "ef1", "n_faces")
 #: Every generated block: its name in the documents -> what it shows.
@@ -492,6 +503,20 @@ BLOCKS = {
         "With exact fields (oracle, the paper's {shapes} parts) SALS + E-DC against SDF + NDC: EF1 better on\n"
         "{sals>sdf-ndc.ef1} parts and worse on {sdf-ndc>sals.ef1} (mean {sals.ef1} against {sdf-ndc.ef1}), ECD better on\n"
         "{sals>sdf-ndc.ecd} and worse on {sdf-ndc>sals.ecd} (mean x1e2 {sals.ecd} against {sdf-ndc.ecd}).\n", O50),
+    "mlp-ef1": Across("EF1, plain MLP", "ef1", tuple(ML.values()), MLP_STEPS),
+    "mlp-ecd": Across("ECD, plain MLP", "ecd", tuple(ML.values()), MLP_STEPS),
+    "mlp-cd": Across("CD, plain MLP", "cd", tuple(ML.values()), MLP_STEPS),
+    "mlp-faces": Across("faces, plain MLP", "n_faces", tuple(ML.values()), MLP_STEPS, stat="median"),
+    "mlp-paired": PairedAcross("ef1", MLP_PAIRS, MLP_STEPS),
+    "mlp-paired-ecd": PairedAcross("ecd", MLP_PAIRS, MLP_STEPS),
+    "mlp-paired-cd": PairedAcross("cd", MLP_PAIRS, MLP_STEPS),
+    "mlp-vs-grid": Paired(BACKBONE_PAIRS, ("cd", "ecd", "ef1")),
+    "headline-backbone": Headline(
+        "With the paper's kind of network instead (a plain Softplus MLP, the `mlp` budget at 4,000 steps, where "
+        "SALS has not converged) on the same {shapes} parts at 128^3: SDF + NDC beats SALS on EF1 on "
+        "{sdf-ndc>sals.ef1} of {shapes} (mean {sdf-ndc.ef1} against {sals.ef1}), and SALS beats marching cubes "
+        "on {sals>sdf.ef1} of {shapes} (SDF + MC {sdf.ef1}).",
+        tuple(Row(m, MLP_SCALING, {"method": m, "steps": 4000}) for m in ("sals", "sdf", "sdf-ndc"))),
     "headline-resolution": Headline(
         "Extracting the `cpu` fits of 12 other unseen parts at 64^3, 128^3 and 256^3: SDF + NDC leads SALS at "
         "every grid ({sdf-ndc@256>sals@256.ef1} of {shapes} at 256^3, and {sdf-ndc@512>sals@512.ef1} of the 4 parts "
