@@ -90,21 +90,20 @@ def test_a_killed_block_wise_run_resumes_without_recomputing_finished_blocks(tmp
 
 
 
-#: The modules that compute a block-wise Poisson job (its body, the block geometry, the method,
-#: the shared reconstruct steps, the stored blocks, the input cloud): an edit to any one of them
-#: makes the finished job stale.
-BLOCK_COMPUTING = ("tasks/blocks.py", "tasks/block_store.py", "tasks/reconstruct.py", "methods/pointcloud/blocks.py",
-                   "methods/pointcloud/poisson.py", "foundation/corruptions.py")
-#: Modules of the run layer around it: an edit there re-runs nothing.
-BLOCK_SCHEDULING = ("runner/blocks.py", "runner/job.py")
+#: A module that computes a block-wise Poisson job (the method): an edit makes the finished job stale.
+#: That every module such a job runs is inside its digest is the code probe's test
+#: (tests/test_tasks_code_probe.py); this one checks what a stale job does, end to end.
+COMPUTING_MODULE = "methods/pointcloud/poisson.py"
+#: A module of the run layer around it: an edit there re-runs nothing.
+SCHEDULING_MODULE = "runner/blocks.py"
 
 
 @pytest.mark.slow
-def test_an_edit_to_any_module_that_computes_a_block_wise_job_makes_it_stale(tmp_path):
+def test_an_edit_to_a_module_that_computes_a_block_wise_job_makes_it_stale(tmp_path):
     """A finished block-wise run, then copies of the code with an unused function appended to one
-    module: each computing module's edit refuses the run as stale before any work (exit 2, one
-    line), a scheduling module's edit re-runs nothing, and --recompute-stale after an edit re-makes
-    every block in a new folder and removes the old one."""
+    module: the method's edit refuses the run as stale before any work (exit 2, one line), the block
+    scheduler's edit re-runs nothing, and --recompute-stale after the method's edit re-makes every
+    block in a new folder and removes the old one."""
     import shutil
 
     copy = tmp_path / "copy"
@@ -117,24 +116,25 @@ def test_an_edit_to_any_module_that_computes_a_block_wise_job_makes_it_stale(tmp
         return subprocess.run([sys.executable, "run_benchmark.py", *ARGS, "--executor", "local", "--out", str(out),
                                *extra], cwd=copy, capture_output=True, text=True, timeout=600)
 
-    first = run()
-    assert first.returncode == 0, first.stderr[-2000:]
-    (folder,) = out.glob("blocks/*")
-    for module in (*BLOCK_COMPUTING, *BLOCK_SCHEDULING):
+    def edit(module):
         path = copy / module
         original = path.read_text()
         path.write_text(original + "\n\ndef an_unused_function():\n    return 'nothing calls this'\n")
-        proc = run()
-        path.write_text(original)
-        if module in BLOCK_COMPUTING:
-            assert proc.returncode == 2, f"{module}: {proc.stderr[-800:]}"
-            (line,) = proc.stderr.strip().splitlines()
-            assert "1 finished jobs rows (poisson) were computed by other code than today's" in line, (module, line)
-        else:
-            assert proc.returncode == 0 and "(0 run now, 2 done before)" in proc.stderr, (module, proc.stderr[-800:])
+        return path, original
 
-    path = copy / BLOCK_COMPUTING[0]
-    path.write_text(path.read_text() + "\n\ndef an_unused_function():\n    return 'nothing calls this'\n")
+    first = run()
+    assert first.returncode == 0, first.stderr[-2000:]
+    (folder,) = out.glob("blocks/*")
+    path, original = edit(SCHEDULING_MODULE)
+    proc = run()
+    path.write_text(original)
+    assert proc.returncode == 0 and "(0 run now, 2 done before)" in proc.stderr, proc.stderr[-800:]
+
+    edit(COMPUTING_MODULE)
+    proc = run()
+    assert proc.returncode == 2, proc.stderr[-800:]
+    (line,) = proc.stderr.strip().splitlines()
+    assert "1 finished jobs rows (poisson) were computed by other code than today's" in line, line
     again = run("--recompute-stale")
     assert again.returncode == 0 and "8 blocks to run" in again.stderr, again.stderr[-2000:]
     (new_folder,) = out.glob("blocks/*")
