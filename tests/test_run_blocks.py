@@ -90,12 +90,54 @@ def test_a_killed_block_wise_run_resumes_without_recomputing_finished_blocks(tmp
 
 
 
-#: A module that computes a block-wise Poisson job (the method): an edit makes the finished job stale.
-#: That every module such a job runs is inside its digest is the code probe's test
-#: (tests/test_tasks_code_probe.py); this one checks what a stale job does, end to end.
-COMPUTING_MODULE = "methods/pointcloud/poisson.py"
-#: A module of the run layer around it: an edit there re-runs nothing.
-SCHEDULING_MODULE = "runner/blocks.py"
+#: The modules that compute a block-wise Poisson job (its body, the block geometry, the method, the
+#: shared reconstruct steps, the stored blocks, the input cloud): an edit to any one of them makes the
+#: finished job stale.
+BLOCK_COMPUTING = ("tasks/blocks.py", "tasks/block_store.py", "tasks/reconstruct.py", "methods/pointcloud/blocks.py",
+                   "methods/pointcloud/poisson.py", "foundation/corruptions.py")
+#: Modules of the run layer around it: an edit there re-runs nothing.
+BLOCK_SCHEDULING = ("runner/blocks.py", "runner/job.py")
+PACKAGES = ("foundation", "datasets", "methods", "reports", "runner", "tasks")
+
+
+def _copy_of_the_code(copy: Path) -> None:
+    import shutil
+
+    for name in PACKAGES:
+        shutil.copytree(REPO / name, copy / name, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(REPO / "run_benchmark.py", copy / "run_benchmark.py")
+
+
+def _append_an_unused_function(path: Path) -> str:
+    """Append a function nothing calls to ``path``; returns its text before."""
+    original = path.read_text()
+    path.write_text(original + "\n\ndef an_unused_function():\n    return 'nothing calls this'\n")
+    return original
+
+
+def test_an_edit_to_each_computing_module_changes_a_block_wise_jobs_digest_and_a_scheduling_edit_does_not(tmp_path):
+    """Each module of BLOCK_COMPUTING, edited in a copy of the code, changes the code digest a
+    block-wise job's row is stored with (so the row is stale); each of BLOCK_SCHEDULING leaves it."""
+    from runner.plan import build_tasks, resolve
+    from tasks.cache import code_digest, task_code_modules
+
+    _, (job,) = build_tasks(resolve(RunConfig(task="reconstruct", dataset="rooms", limit=1, methods=("poisson",),
+                                              grid=24, pc_blocks=16, pc_scene_grid=32, pc_points=4000,
+                                              eval_points=20000, no_cache=True, gallery=0)))
+    modules = task_code_modules(job)
+    _copy_of_the_code(tmp_path)
+    before = code_digest(*modules, root=tmp_path)
+    assert before == code_digest(*modules)
+    for module in (*BLOCK_COMPUTING, *BLOCK_SCHEDULING):
+        original = _append_an_unused_function(tmp_path / module)
+        code_digest.cache_clear()  # it holds a process's digests: its files do not change while it runs
+        after = code_digest(*modules, root=tmp_path)
+        (tmp_path / module).write_text(original)
+        assert (after != before) == (module in BLOCK_COMPUTING), module
+
+
+#: The module edited end to end: the method of a block-wise job, and the block scheduler.
+COMPUTING_MODULE, SCHEDULING_MODULE = "methods/pointcloud/poisson.py", "runner/blocks.py"
 
 
 @pytest.mark.slow
@@ -103,34 +145,25 @@ def test_an_edit_to_a_module_that_computes_a_block_wise_job_makes_it_stale(tmp_p
     """A finished block-wise run, then copies of the code with an unused function appended to one
     module: the method's edit refuses the run as stale before any work (exit 2, one line), the block
     scheduler's edit re-runs nothing, and --recompute-stale after the method's edit re-makes every
-    block in a new folder and removes the old one."""
-    import shutil
-
+    block in a new folder and removes the old one. (Every other computing module's edit changes the
+    same digest: the test above.)"""
     copy = tmp_path / "copy"
-    for name in ("foundation", "datasets", "methods", "reports", "runner", "tasks"):
-        shutil.copytree(REPO / name, copy / name, ignore=shutil.ignore_patterns("__pycache__"))
-    shutil.copy(REPO / "run_benchmark.py", copy / "run_benchmark.py")
+    _copy_of_the_code(copy)
     out = tmp_path / "run"
 
     def run(*extra):
         return subprocess.run([sys.executable, "run_benchmark.py", *ARGS, "--executor", "local", "--out", str(out),
                                *extra], cwd=copy, capture_output=True, text=True, timeout=600)
 
-    def edit(module):
-        path = copy / module
-        original = path.read_text()
-        path.write_text(original + "\n\ndef an_unused_function():\n    return 'nothing calls this'\n")
-        return path, original
-
     first = run()
     assert first.returncode == 0, first.stderr[-2000:]
     (folder,) = out.glob("blocks/*")
-    path, original = edit(SCHEDULING_MODULE)
+    original = _append_an_unused_function(copy / SCHEDULING_MODULE)
     proc = run()
-    path.write_text(original)
+    (copy / SCHEDULING_MODULE).write_text(original)
     assert proc.returncode == 0 and "(0 run now, 2 done before)" in proc.stderr, proc.stderr[-800:]
 
-    edit(COMPUTING_MODULE)
+    _append_an_unused_function(copy / COMPUTING_MODULE)
     proc = run()
     assert proc.returncode == 2, proc.stderr[-800:]
     (line,) = proc.stderr.strip().splitlines()
