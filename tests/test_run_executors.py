@@ -316,19 +316,13 @@ def test_default_executor_runs_process_workers_and_gives_the_local_table(mesh_di
     from runner import executors
 
     monkeypatch.setattr(executors, "physical_cores", lambda: 2)
-    df, _ = _run(mesh_dir, tmp_path / "run", tmp_path / "cache")
-    pd.testing.assert_frame_equal(_stable(df), _stable(local_table[0]))
-    record = json.loads((tmp_path / "run" / "config.json").read_text())
-    assert record["execution"] == {"executor": "process", "workers": 2, "threads_per_job": 1}
-    assert "executor process, 2 workers x 1 torch thread" in (tmp_path / "run" / "timing.md").read_text()
-
-
-@pytest.mark.slow
-def test_process_executor_gives_the_local_table(mesh_dir, tmp_path, local_table):
-    df, wall = _run(mesh_dir, tmp_path / "run", tmp_path / "cache", "--executor", "process", "--workers", "2")
+    df, wall = _run(mesh_dir, tmp_path / "run", tmp_path / "cache")
     _check_table(df)
     pd.testing.assert_frame_equal(_stable(df), _stable(local_table[0]))
     print(f"wall time local {local_table[1]:.1f} s, process(2) {wall:.1f} s, ratio {wall / local_table[1]:.2f}")
+    record = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert record["execution"] == {"executor": "process", "workers": 2, "threads_per_job": 1}
+    assert "executor process, 2 workers x 1 torch thread" in (tmp_path / "run" / "timing.md").read_text()
 
 
 # ---------------------------------------------------------------------------------------------
