@@ -26,6 +26,8 @@ requested variants. The default dataset is 4 shapes: 2 closed, 1 open, 1 non-man
 
 from __future__ import annotations
 
+import copy
+import functools
 from collections.abc import Callable
 from typing import Any
 
@@ -370,7 +372,24 @@ def piercing_transform(part_a: Manifold, part_b: Manifold, rng: np.random.Genera
 
 
 def generate_shape(index: int, kind: str = "closed", seed: int = 0) -> Shape:
-    """Built-in shape number ``index`` of the given variant, in the canonical frame."""
+    """Built-in shape number ``index`` of the given variant, in the canonical frame.
+
+    A shape is a function of its arguments (:func:`build_shape`): each is built once per process
+    (the last :data:`GENERATED_KEPT` kept) and every call returns its own copy."""
+    return copy.deepcopy(_kept_shape(int(index), kind, int(seed)))
+
+
+#: Built-in shapes a process keeps after building them (:func:`generate_shape`).
+GENERATED_KEPT = 64
+
+
+@functools.lru_cache(maxsize=GENERATED_KEPT)
+def _kept_shape(index: int, kind: str, seed: int) -> Shape:
+    return build_shape(index, kind, seed)
+
+
+def build_shape(index: int, kind: str = "closed", seed: int = 0) -> Shape:
+    """:func:`generate_shape` without the per-process copy: builds the shape each call."""
     if kind not in VARIANTS:
         raise DatasetError(f"unknown builtin variant '{kind}'; known: {', '.join(VARIANTS)}")
     template = TEMPLATE_NAMES[index % len(TEMPLATE_NAMES)]

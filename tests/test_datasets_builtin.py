@@ -9,6 +9,7 @@ import trimesh
 from datasets import DatasetError, get_dataset
 from datasets.builtin import (
     TEMPLATE_NAMES,
+    build_shape,
     builtin_names,
     generate_shape,
     largest_planar_region,
@@ -53,6 +54,16 @@ def test_same_seed_same_arrays_and_count_does_not_change_a_shape():
     assert first == again[:2]
     other = get_dataset("builtin", count=1, seed=8).load("builtin_000_bracket")
     assert other.content_hash != first[0]
+    assert build_shape(0, "closed", 7).content_hash == build_shape(0, "closed", 7).content_hash == first[0]
+
+
+def test_each_load_is_its_own_copy_of_the_shape_built_once():
+    a = generate_shape(3, "nonmanifold", seed=0)
+    a.vertices[:] = 0.0
+    a.meta["template"] = "edited"
+    b = generate_shape(3, "nonmanifold", seed=0)
+    assert b.content_hash == build_shape(3, "nonmanifold", 0).content_hash and b.meta["template"] == "slotted_block"
+    assert b.vertices is not a.vertices
 
 
 def test_closed_templates_are_watertight_cad_like_parts(closed_shapes):
