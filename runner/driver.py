@@ -195,9 +195,11 @@ def run(plan: Plan, run_dir: RunDirectory, record: dict, executor=None) -> RunOu
     finally:
         display.close()
         wall = time.perf_counter() - t0
-        try:  # the report draws its shapes on the run's workers, unless the run was interrupted
+        # the report draws its shapes on the workers that ran this session's jobs; in this process when
+        # there were none or the run was interrupted (a pool started only to draw costs more than it saves)
+        try:
             export(run_dir.path, db=db, record=run_dir.read_record(), gallery=config.gallery,
-                   map_shapes=executor.map if finished else map)
+                   map_shapes=executor.map if finished and todo else map)
         finally:
             executor.close()
         ok = len({t.key for t in floors} & db.ok_hashes("floor")) + len({t.key for t in jobs} & db.ok_hashes("jobs"))

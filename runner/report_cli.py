@@ -7,9 +7,24 @@ import argparse
 import datetime as _dt
 import sys
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 from runner.parsing import EXIT_REFUSED, OneLineParser
+
+#: Shapes from which one run's report draws them on a pool of processes (one per core): a worker
+#: starts by importing torch and the project (about 3.5 s of CPU), more than drawing a few shapes.
+POOL_MIN_SHAPES = 8
+
+
+def pooled_when_many(pool_map: Callable, min_shapes: int = POOL_MIN_SHAPES) -> Callable:
+    """A report's ``map_shapes``: ``pool_map(fn, shapes)`` for ``min_shapes`` shapes or more, else
+    ``[fn(s) for s in shapes]`` in this process (the pool is then never started)."""
+
+    def draw(fn: Callable, shapes) -> list:
+        shapes = list(shapes)
+        return list(pool_map(fn, shapes)) if len(shapes) >= min_shapes else [fn(s) for s in shapes]
+
+    return draw
 
 
 def build_report_parser() -> argparse.ArgumentParser:
@@ -65,7 +80,7 @@ def _report(args: argparse.Namespace) -> int:
         try:
             written = export(Path(args.runs[0]), out_dir=Path(args.out) if args.out else None,
                              only_complete_shapes=args.complete_shapes,
-                             map_shapes=drawing.map if drawing.workers > 1 else map,
+                             map_shapes=pooled_when_many(drawing.map) if drawing.workers > 1 else map,
                              reference=args.reference, reference_keep=args.reference_keep)
         finally:
             drawing.close()

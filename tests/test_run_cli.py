@@ -234,10 +234,13 @@ def test_second_resume_keeps_the_saved_configuration(fakes, tmp_path):
     assert len(df) == 4 and set(df.method) == {"test_sdf", "test_occ"} and (df["mode"] == "oracle").all()
 
 
-def test_an_invocation_with_nothing_left_keeps_the_record_of_those_that_ran_the_tasks(fakes, tmp_path):
+def test_an_invocation_with_nothing_left_keeps_the_record_of_those_that_ran_the_tasks(fakes, tmp_path, monkeypatch):
     """config.json and the timing caption name how the rows were computed: an invocation that finds
-    every task done (here with another thread count) changes neither; one that runs tasks differently
-    is added as a session, and the caption names both with their task counts."""
+    every task done (here with another thread count, then another executor) changes neither and
+    starts no pool to draw its report; one that runs tasks differently is added as a session, and the
+    caption names both with their task counts."""
+    from runner import executors
+
     out, cache = tmp_path / "run", tmp_path / "cache"
     args = oracle_args(out, cache, "--threads", "1")
     args.remove("test_occ")
@@ -245,7 +248,7 @@ def test_an_invocation_with_nothing_left_keeps_the_record_of_those_that_ran_the_
     first = json.loads((out / "config.json").read_text())
     assert first["execution"] == {"executor": "local", "workers": 1, "threads_per_job": 1}
     assert [s["tasks"] for s in first["sessions"]] == [4]  # 2 shapes: 2 jobs and 2 floors
-    assert main(["--resume", "--out", str(out), "--quiet", "--threads", "2"]) == 0
+
     again = json.loads((out / "config.json").read_text())
     for key in ("execution", "started", "environment", "sessions"):
         assert again[key] == first[key], key
@@ -256,6 +259,14 @@ def test_an_invocation_with_nothing_left_keeps_the_record_of_those_that_ran_the_
     assert added["execution"]["threads_per_job"] == 2 and added["sessions"][0] == first["sessions"][0]
     assert ("executor local, 1 worker x 1 torch thread (4 tasks); executor local, 1 worker x 2 torch threads "
             "(2 tasks).") in (out / "timing.md").read_text()
+
+    def no_pool(self):
+        raise AssertionError("a process pool was started")
+
+    monkeypatch.setattr(executors.ProcessExecutor, "_new_pool", no_pool)
+    (out / "report.html").unlink()
+    assert main(["--resume", "--out", str(out), "--quiet", "--executor", "process", "--workers", "2"]) == 0
+    assert (out / "report.html").is_file() and json.loads((out / "config.json").read_text())["sessions"] == added["sessions"]
 
 
 def test_a_different_protocol_is_refused_naming_the_settings(fakes, tmp_path, capsys):
