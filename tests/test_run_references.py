@@ -245,7 +245,7 @@ def test_a_plugin_on_two_paper_parts_beside_every_reference_row(tmp_path):
     out = tmp_path / "run"
     assert main(["--task", "reconstruct", "--plugin", str(REPO / "examples" / "convex_hull.py"), "--methods",
                  "convex-hull", "--dataset", "sals-abc50", "--shapes", *TWO, "--reference", "paper-abc50-reconstruct",
-                 "--gallery", "0", "--quiet", "--out", str(out), "--cache-dir", str(tmp_path / "cache")]) == 0
+                 "--gallery", "0", "--quiet", "--out", str(out), "--cache-dir", str(tmp_path / "cache"), "--executor", "local"]) == 0
     labels = {m + " (ref)" for m in find_reference("paper-abc50-reconstruct").rows["method"]}
     assert len(labels) == 7
     summary, html = (out / "summary.md").read_text(), (out / "report.html").read_text()
@@ -267,7 +267,7 @@ def test_meshes_made_elsewhere_scored_beside_the_oracle_set(tmp_path):
         (preds / f"{s}.stl").write_bytes((SHARED_DATA / "abc-ppsurf" / f"{s}.stl").read_bytes())
     out = tmp_path / "score"
     assert main(["score", "--pred-dir", str(preds), "--name", "mine", "--dataset", "sals-abc50", "--shapes", *shapes,
-                 "--reference", "paper-abc50-oracle", "--gallery", "0", "--quiet", "--out", str(out)]) == 0
+                 "--reference", "paper-abc50-oracle", "--gallery", "0", "--quiet", "--out", str(out), "--executor", "local"]) == 0
     stats = pd.read_csv(out / "statistics.csv")
     stats = stats[~stats["method"].str.startswith("floor")]  # the GT against a resample of itself
     assert set(stats["method"]) == {"mine"} | {m + " (ref)" for m in ref.rows["method"]} and stats["method"].nunique() == 12
@@ -283,7 +283,8 @@ def test_one_shipped_oracle_row_is_recomputed_to_its_stored_digits(tmp_path):
     shape = "00017633_28ef8351018b4be18377fa7b_trimesh_005"
     out = tmp_path / "run"
     assert main(["--mode", "oracle", "--methods", "sals", "--dataset", "sals-abc50", "--shapes", shape,
-                 "--gallery", "0", "--quiet", "--out", str(out), "--cache-dir", str(tmp_path / "cache")]) == 0
+                 "--gallery", "0", "--quiet", "--out", str(out), "--cache-dir", str(tmp_path / "cache"),
+                 "--executor", "local"]) == 0
     now = pd.read_csv(out / "results.csv").iloc[0]
     stored = ref.rows[(ref.rows["shape"] == shape) & (ref.rows["method"] == "sals")].iloc[0]
     for metric in ("cd", "nc", "f1_005", "f1_01", "ecd", "ef1", "n_faces"):
