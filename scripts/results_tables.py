@@ -269,8 +269,10 @@ def render_paired_across(paired: PairedAcross) -> str:
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for a, b in paired.pairs:
         cells = [f"{a.label} vs {b.label}"]
-        for _, where in paired.columns:
-            cells.append(_pair_text(_within(a, where), _within(b, where), paired.metric))
+        for _, where in paired.columns:  # a pair may lack a column (a row not run there): '–'
+            a_in, b_in = _within(a, where), _within(b, where)
+            missing = per_shape(a_in).empty or per_shape(b_in).empty
+            cells.append("–" if missing else _pair_text(a_in, b_in, paired.metric))
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -375,7 +377,9 @@ RESOLUTION_PARTS = "resolution-decompose-sals.csv"
 RESOLUTION_JOBS = "resolution-decompose-sals-jobs.csv"
 GRID_ROWS = ("sals", "sals-ndc", "sdf", "sdf-ndc", "udf", "udf-dualmesh", "udf-ndc", "bof")
 GRIDS = tuple((f"{n}^3", {"grid": n}) for n in (64, 128, 256))
-GRIDS_512 = GRIDS + (("512^3 (4 parts)", {"grid": 512}),)
+GRIDS_512 = GRIDS + (("512^3", {"grid": 512}),)
+#: The grids of the neural resolution tables: 384^3 holds the row that does not fit 512^3.
+GRIDS_ALL = GRIDS + (("384^3", {"grid": 384}), ("512^3", {"grid": 512}))
 RN = {m: Row(m, RESOLUTION, {"method": m}) for m in GRID_ROWS}
 S93 = _rows(UNSEEN93, "sals", "sals-ndc", "sdf", "sdf-ndc")
 O50 = _rows(PAPER50_ORACLE, "sals", "sdf-ndc")
@@ -452,14 +456,15 @@ BLOCKS = {
     "unseen93-paired": Paired(((S93[3], S93[0]), (S93[0], S93[2]), (S93[1], S93[0]), (S93[3], S93[1])),
                               ("cd", "ecd", "ef1")),
     "paper50-paired": Paired(((P50[2], P50[0]), (P50[0], P50[1])), ("cd", "ecd", "ef1")),
-    "resolution-ef1": Across("EF1, neural", "ef1", tuple(RN.values()), GRIDS_512),
-    "resolution-ecd": Across("ECD, neural", "ecd", tuple(RN.values()), GRIDS_512),
-    "resolution-cd": Across("CD, neural", "cd", tuple(RN.values()), GRIDS_512),
-    "resolution-precision": Across("EF1 precision / recall, neural", "eprecision", tuple(RN.values()), GRIDS),
-    "resolution-recall": Across("EF1 recall, neural", "erecall", tuple(RN.values()), GRIDS),
+    "resolution-ef1": Across("EF1, neural", "ef1", tuple(RN.values()), GRIDS_ALL),
+    "resolution-ecd": Across("ECD, neural", "ecd", tuple(RN.values()), GRIDS_ALL),
+    "resolution-cd": Across("CD, neural", "cd", tuple(RN.values()), GRIDS_ALL),
+    "resolution-precision": Across("EF1 precision / recall, neural", "eprecision", tuple(RN.values()), GRIDS_ALL),
+    "resolution-recall": Across("EF1 recall, neural", "erecall", tuple(RN.values()), GRIDS_ALL),
     "resolution-paired": PairedAcross("ef1", ((RN["sals"], RN["sdf"]), (RN["sdf-ndc"], RN["sals"]),
-                                              (RN["sdf-ndc"], RN["sals-ndc"]), (RN["udf-dualmesh"], RN["sals"])), GRIDS),
-    "resolution-paired-cd": PairedAcross("cd", ((RN["sals"], RN["sdf"]), (RN["sdf-ndc"], RN["sals"])), GRIDS),
+                                              (RN["sdf-ndc"], RN["sals-ndc"]), (RN["udf-dualmesh"], RN["sals"])),
+                                      GRIDS_512),
+    "resolution-paired-cd": PairedAcross("cd", ((RN["sals"], RN["sdf"]), (RN["sdf-ndc"], RN["sals"])), GRIDS_512),
     "resolution-oracle-ef1": Across("EF1, oracle", "ef1", _rows(RESOLUTION_ORACLE, *GRID_ROWS), GRIDS),
     "resolution-oracle-precision": Across("EF1 precision, oracle", "eprecision", _rows(RESOLUTION_ORACLE, *GRID_ROWS),
                                           GRIDS),
@@ -489,8 +494,8 @@ BLOCKS = {
         "`sals`'s fitted flags against the exact edges (6 parts)",
         tuple(Row(label, RESOLUTION_JOBS, {"method": "sals", "grid": n}) for label, n in (("128^3", 128), ("256^3", 256))),
         ("hit_edges", "false_hit_edges", "missed_edges", "s_error_h", "normal_error_deg"), medians=()),
-    "resolution-seconds": Across("median s per job (neural)", "total_s", tuple(RN.values()), GRIDS_512, stat="median"),
-    "resolution-peak": Across("largest peak GiB of a job (neural)", "peak_rss_mib", tuple(RN.values()), GRIDS_512,
+    "resolution-seconds": Across("median s per job (neural)", "total_s", tuple(RN.values()), GRIDS_ALL, stat="median"),
+    "resolution-peak": Across("largest peak GiB of a job (neural)", "peak_rss_mib", tuple(RN.values()), GRIDS_ALL,
                               stat="max"),
     "headline": Headline(
         "At the `cpu` budget (3,000 steps, about a minute of fitting per part on one CPU core) on the {shapes} ABC "
@@ -521,10 +526,11 @@ BLOCKS = {
         tuple(Row(f"{m}@{n}", MLP_SCALING, {"method": m, "steps": n}) for n in (8000, 4000, 2000)
               for m in ("sals", "sdf", "sdf-ndc"))),
     "headline-resolution": Headline(
-        "Extracting the `cpu` fits of 12 other unseen parts at 64^3, 128^3 and 256^3: SDF + NDC leads SALS at "
-        "every grid ({sdf-ndc@256>sals@256.ef1} of {shapes} at 256^3, and {sdf-ndc@512>sals@512.ef1} of the 4 parts "
-        "run at 512^3), while SALS's lead over marching cubes ({sals@64>sdf@64.ef1} and {sals@128>sdf@128.ef1} of "
-        "{shapes} parts at 64^3 and 128^3) is gone at 256^3 (MC better on {sdf@256>sals@256.ef1} of {shapes}).",
+        "Extracting the `cpu` fits of 12 other unseen parts at 64^3, 128^3, 256^3 and 512^3: SDF + NDC leads SALS "
+        "at every grid ({sdf-ndc@256>sals@256.ef1} of {shapes} at 256^3, {sdf-ndc@512>sals@512.ef1} at 512^3), while "
+        "SALS's lead over marching cubes ({sals@64>sdf@64.ef1} and {sals@128>sdf@128.ef1} of {shapes} parts at 64^3 "
+        "and 128^3) is gone at 256^3 and 512^3 (MC better on {sdf@256>sals@256.ef1} and {sdf@512>sals@512.ef1} of "
+        "{shapes}).",
         tuple(Row(f"{m}@{n}", RESOLUTION, {"method": m, "grid": n}) for n in (256, 128, 64, 512)
               for m in ("sals", "sdf", "sdf-ndc"))),
 }
