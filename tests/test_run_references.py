@@ -260,7 +260,7 @@ def test_a_plugin_on_two_paper_parts_beside_every_reference_row(tmp_path):
 @needs_parts
 def test_meshes_made_elsewhere_scored_beside_the_oracle_set(tmp_path):
     ref = find_reference("paper-abc50-oracle")
-    shapes = sorted(ref.manifest["shapes"])[:3]
+    shapes = sorted(ref.manifest["shapes"])[:2]  # two: a mean and a paired statistic over shapes
     preds = tmp_path / "preds"
     preds.mkdir()
     for s in shapes:  # the GT itself as "my" prediction: a mesh of another frame, scored in the original one
