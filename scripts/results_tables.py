@@ -465,9 +465,9 @@ BLOCKS = {
                                               (RN["sdf-ndc"], RN["sals-ndc"]), (RN["udf-dualmesh"], RN["sals"])),
                                       GRIDS_512),
     "resolution-paired-cd": PairedAcross("cd", ((RN["sals"], RN["sdf"]), (RN["sdf-ndc"], RN["sals"])), GRIDS_512),
-    "resolution-oracle-ef1": Across("EF1, oracle", "ef1", _rows(RESOLUTION_ORACLE, *GRID_ROWS), GRIDS),
+    "resolution-oracle-ef1": Across("EF1, oracle", "ef1", _rows(RESOLUTION_ORACLE, *GRID_ROWS), GRIDS_512),
     "resolution-oracle-precision": Across("EF1 precision, oracle", "eprecision", _rows(RESOLUTION_ORACLE, *GRID_ROWS),
-                                          GRIDS),
+                                          GRIDS_512),
     "resolution-faces": Across(
         "E-DC face rule, oracle `sals`", "ef1",
         tuple(Row(rule, "resolution-edc-faces-oracle.csv", {"sweep.sals.faces": rule})
