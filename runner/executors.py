@@ -358,6 +358,28 @@ def _ray_call(fn: Callable, spec, threads: int):
     return fn(spec, None)
 
 
+def _pythonpath_with_repo() -> str:
+    return os.pathsep.join([str(REPO)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])
+
+
+def start_local_ray(num_cpus: int, **init_kwargs) -> None:
+    """Start a local Ray instance of ``num_cpus`` CPUs whose workers import the suite: its raylet is
+    started with the suite on ``PYTHONPATH`` (restored here afterwards), and its workers inherit that
+    environment. No runtime environment is asked for: with one, Ray starts its workers again through
+    a set-up process, besides those it starts with the instance."""
+    before = os.environ.get("PYTHONPATH")
+    os.environ["PYTHONPATH"] = _pythonpath_with_repo()
+    try:
+        import ray
+
+        ray.init(num_cpus=int(num_cpus), **init_kwargs)
+    finally:
+        if before is None:
+            os.environ.pop("PYTHONPATH", None)
+        else:
+            os.environ["PYTHONPATH"] = before
+
+
 class RayExecutor:
     """Runs tasks as Ray tasks (see module docstring). Joins or starts Ray; shuts down only what it started."""
 
@@ -377,16 +399,15 @@ class RayExecutor:
         if not ray.is_initialized():
             common = dict(include_dashboard=False, ignore_reinit_error=True, log_to_driver=False,
                           logging_level=logging.WARNING)
-            pythonpath = os.pathsep.join([str(REPO)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])
             if address:
+                pythonpath = _pythonpath_with_repo()
                 # a cluster may run on other machines: ship the suite's packages with the tasks
                 modules = [str(REPO / m) for m in ("foundation", "methods", "datasets", "reports", "tasks", "runner")
                            if (REPO / m).is_dir()]
                 ray.init(address=address, runtime_env={"py_modules": modules,
                                                        "env_vars": {"PYTHONPATH": pythonpath}}, **common)
             else:
-                ray.init(num_cpus=int(workers or available_cores()),
-                         runtime_env={"env_vars": {"PYTHONPATH": pythonpath}}, **common)
+                start_local_ray(int(workers or available_cores()), **common)
             self._started = True
         resources = ray.cluster_resources()
         self.cluster_gpus = float(resources.get("GPU", 0.0))

@@ -22,7 +22,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from runner.executors import LocalExecutor, ProcessExecutor, WorkerLost, ray_available, threads_per_worker
+from runner.executors import (LocalExecutor, ProcessExecutor, WorkerLost, ray_available, start_local_ray,
+                              threads_per_worker)
 from runner.cli import EXIT_FAILED_TASKS, main
 
 REPO = Path(__file__).resolve().parents[1]
@@ -336,9 +337,7 @@ def ray_instance():
         pytest.skip(RAY_REASON)
     import ray
 
-    pythonpath = os.pathsep.join([str(REPO)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False,
-             runtime_env={"env_vars": {"PYTHONPATH": pythonpath}})
+    start_local_ray(2, include_dashboard=False, log_to_driver=False)
     yield ray
     ray.shutdown()
 
