@@ -343,6 +343,7 @@ def ray_instance():
 
 
 @pytest.mark.slow
+@pytest.mark.ray
 def test_ray_executor_gives_the_local_table(ray_instance, mesh_dir, tmp_path, local_table):
     df, wall = _run(mesh_dir, tmp_path / "run", tmp_path / "cache", "--executor", "ray")
     _check_table(df)
@@ -350,6 +351,7 @@ def test_ray_executor_gives_the_local_table(ray_instance, mesh_dir, tmp_path, lo
     print(f"wall time local {local_table[1]:.1f} s, ray {wall:.1f} s, ratio {wall / local_table[1]:.2f}")
 
 
+@pytest.mark.ray
 def test_ray_dead_worker_is_reported_failed_and_others_finish(ray_instance):
     from runner.executors import RayExecutor
 
@@ -363,6 +365,7 @@ def test_ray_dead_worker_is_reported_failed_and_others_finish(ray_instance):
     assert ray_instance.is_initialized()  # the executor joined the instance and did not shut it down
 
 
+@pytest.mark.ray
 def test_ray_resources_ask_gpus_only_for_fitting_jobs(ray_instance):
     from runner.executors import RayExecutor
 
@@ -413,6 +416,7 @@ def _running(pid: int) -> bool:
 
 
 @pytest.mark.slow
+@pytest.mark.ray
 def test_two_ray_workers_sharing_one_fit_fit_it_once_and_give_the_local_table(ray_instance, tmp_path):
     """A sweep over an extraction setting gives two jobs per shape that need the same fit; on two Ray
     workers one fits while the other waits on the weights entry's lock and loads it: one fit per
